@@ -1,0 +1,66 @@
+"""The ``pourbench`` console script.
+
+Subcommands import their modules lazily so ``pourbench --help`` stays fast. Each benchmark
+suite is a module ``pourbench.bench.<suite>`` exposing ``add_arguments(parser)`` and
+``run(args) -> int``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+BENCH_SUITES: tuple[str, ...] = ()
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    suites = BENCH_SUITES if args.suite == "all" else (args.suite,)
+    rc = 0
+    for suite in suites:
+        module = importlib.import_module(f"pourbench.bench.{suite}")
+        rc |= module.run(args)
+    return rc
+
+
+def _cmd_liquids(args: argparse.Namespace) -> int:
+    from pourbench.fluids import liquid_names, liquid_profile
+
+    for name in liquid_names():
+        p = liquid_profile(name)
+        print(
+            f"{p.name:14s} density {p.density:6.0f} kg/m^3  viscosity {p.viscosity:6g}  "
+            f"adhesion {p.adhesion:6g}  cohesion {p.cohesion:6g}"
+        )
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="pourbench", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    bench = sub.add_parser("bench", help="run a benchmark suite and write leaderboard/<suite>.*")
+    bench.add_argument("suite", choices=(*BENCH_SUITES, "all"))
+    bench.add_argument("--quick", action="store_true", help="the smallest case only")
+    bench.add_argument("--json", action="store_true", help="print one JSON object to stdout")
+    bench.add_argument("--out", default="leaderboard", help="folder for the tables")
+    bench.add_argument("--no-write", action="store_true", help="do not write leaderboard files")
+    bench.set_defaults(func=_cmd_bench)
+
+    liquids = sub.add_parser("liquids", help="list the shipped liquid profiles")
+    liquids.set_defaults(func=_cmd_liquids)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ValueError as exc:  # bad input: one clear line, no traceback
+        print(f"pourbench: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,197 @@
+"""Liquid profiles: FleX-named parameters loaded from ``assets/liquids.toml``.
+
+The TOML file is the single source of the thesis' liquids (SPEC §1). Names are matched
+case-insensitively, with spaces, hyphens and underscores treated alike.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass
+from functools import cache
+from importlib import resources
+from pathlib import Path
+
+from pourbench.errors import InvalidParameterError, ProfileFileError, UnknownNameError
+
+# FleX parameter name -> LiquidProfile attribute.
+FLEX_NAMES: dict[str, str] = {
+    "solidRest": "solid_rest",
+    "fluidRest": "fluid_rest",
+    "cohesion": "cohesion",
+    "surfaceTension": "surface_tension",
+    "viscosity": "viscosity",
+    "vorticityConfinement": "vorticity_confinement",
+    "adhesion": "adhesion",
+    "staticFriction": "static_friction",
+    "dynamicFriction": "dynamic_friction",
+    "particleFriction": "particle_friction",
+    "dissipation": "dissipation",
+    "damping": "damping",
+    "buoyancy": "buoyancy",
+    "density": "density",
+}
+_OPTIONAL = {"viscosity_cp", "marble_speed"}
+_META = {"name", "source", "base", "aliases"}
+
+
+@dataclass(frozen=True)
+class LiquidProfile:
+    """One liquid: FleX parameters (dimensionless, FleX's meaning) plus physical density.
+
+    Attributes:
+        name: the thesis' name ("Water", "Dish Soap", ...).
+        density: physical rest density, kg/m^3 (sets the particle mass).
+        viscosity: FleX XSPH viscosity coefficient (Table 6.2: 0.01 water ... 80 ketchup).
+        cohesion, surface_tension, adhesion: FleX coefficients.
+        static_friction, dynamic_friction, particle_friction: FleX friction coefficients.
+        dissipation: velocity damping on contact with shapes; damping: global drag, 1/s.
+        vorticity_confinement: FleX vorticity confinement strength.
+        buoyancy: FleX gravity scale for fluid particles (kept for provenance; 1 = full gravity).
+        solid_rest, fluid_rest: the thesis' Unity-FleX rest values (provenance only).
+        viscosity_cp: measured dynamic viscosity (cP), if the thesis measured it.
+        marble_speed: falling-ball speed (m/s) in Table 3.4, if measured.
+        source: where each number comes from.
+    """
+
+    name: str
+    density: float
+    viscosity: float
+    cohesion: float
+    surface_tension: float
+    adhesion: float
+    static_friction: float
+    dynamic_friction: float
+    particle_friction: float
+    dissipation: float
+    damping: float
+    vorticity_confinement: float
+    buoyancy: float
+    solid_rest: float
+    fluid_rest: float
+    viscosity_cp: float | None = None
+    marble_speed: float | None = None
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            if f.name in ("name", "source"):
+                continue
+            v = getattr(self, f.name)
+            if v is None and f.name in _OPTIONAL:
+                continue
+            what = f"liquid {self.name!r}: {f.name}"
+            if not isinstance(v, int | float) or math.isnan(v) or math.isinf(v):
+                raise InvalidParameterError(f"{what} must be finite, got {v!r}")
+            if v < 0 or (f.name == "density" and v == 0):
+                raise InvalidParameterError(f"{what} must be positive, got {v!r}")
+
+    def replace(self, **changes: float) -> LiquidProfile:
+        """Copy with some attributes (snake_case or FleX names) changed; values are validated."""
+        mapped = {FLEX_NAMES.get(k, k): v for k, v in changes.items()}
+        return dataclasses.replace(self, **mapped)
+
+    def to_flex(self) -> dict[str, float]:
+        """The FleX-named parameters as a dict."""
+        return {flex: getattr(self, attr) for flex, attr in FLEX_NAMES.items()}
+
+
+def _norm(name: str) -> str:
+    return " ".join(name.lower().replace("-", " ").replace("_", " ").split())
+
+
+def default_liquids_path() -> Path:
+    """Path of the shipped ``liquids.toml``."""
+    return Path(str(resources.files("pourbench") / "assets" / "liquids.toml"))
+
+
+def load_liquids(path: str | Path | None = None) -> dict[str, LiquidProfile]:
+    """Load every profile of a liquids TOML file, keyed by normalised name and alias.
+
+    Raises:
+        ProfileFileError: the file is not valid TOML, or an entry has a missing, unknown, or
+            non-numeric key; the message names the file and key.
+    """
+    path = Path(path) if path is not None else default_liquids_path()
+    try:
+        doc = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ProfileFileError(path, "<file>", f"invalid TOML: {exc}") from exc
+    defaults = doc.get("defaults", {})
+    raw = doc.get("profile")
+    if not isinstance(raw, dict) or not raw:
+        raise ProfileFileError(path, "profile", "no [profile.<name>] tables")
+    resolved: dict[str, dict] = {}
+
+    def resolve(key: str, chain: tuple[str, ...] = ()) -> dict:
+        if key in resolved:
+            return resolved[key]
+        if key not in raw:
+            raise ProfileFileError(path, f"profile.{chain[-1]}.base", f"unknown base {key!r}")
+        if key in chain:
+            raise ProfileFileError(path, f"profile.{key}.base", "circular base")
+        entry = raw[key]
+        if not isinstance(entry, dict):
+            raise ProfileFileError(path, f"profile.{key}", "must be a table")
+        base = entry.get("base")
+        merged = dict(defaults) if base is None else dict(resolve(base, (*chain, key)))
+        if base is not None:  # measurements belong to the base liquid, not to this one
+            for k in _OPTIONAL | {"aliases"}:
+                merged.pop(k, None)
+        merged.update(entry)
+        resolved[key] = merged
+        return merged
+
+    out: dict[str, LiquidProfile] = {}
+    for key in raw:
+        fields = resolve(key)
+        kwargs: dict[str, object] = {}
+        for k, v in fields.items():
+            if k in _META:
+                continue
+            attr = FLEX_NAMES.get(k, k if k in _OPTIONAL else None)
+            if attr is None:
+                raise ProfileFileError(path, f"profile.{key}.{k}", "unknown parameter")
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                raise ProfileFileError(path, f"profile.{key}.{k}", f"must be a number, got {v!r}")
+            kwargs[attr] = float(v)
+        missing = [flex for flex, attr in FLEX_NAMES.items() if attr not in kwargs]
+        if missing:
+            raise ProfileFileError(path, f"profile.{key}.{missing[0]}", "missing parameter")
+        name = str(fields.get("name", key))
+        try:
+            profile = LiquidProfile(name=name, source=str(fields.get("source", "")), **kwargs)
+        except InvalidParameterError as exc:
+            raise ProfileFileError(path, f"profile.{key}", str(exc)) from exc
+        for alias in (key, name, *fields.get("aliases", [])):
+            out[_norm(alias)] = profile
+    return out
+
+
+@cache
+def _library() -> dict[str, LiquidProfile]:
+    return load_liquids()
+
+
+def liquid_names() -> list[str]:
+    """The thesis' names of every shipped liquid profile, in file order."""
+    seen: dict[str, None] = {}
+    for p in _library().values():
+        seen.setdefault(p.name, None)
+    return list(seen)
+
+
+def liquid_profile(name: str | LiquidProfile) -> LiquidProfile:
+    """Look a profile up by name (case-insensitive; aliases allowed). Profiles pass through.
+
+    Raises:
+        UnknownNameError: the name is not in the library; the message lists the known names.
+    """
+    if isinstance(name, LiquidProfile):
+        return name
+    try:
+        return _library()[_norm(str(name))]
+    except KeyError:
+        raise UnknownNameError("liquid", name, liquid_names()) from None
