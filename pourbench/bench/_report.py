@@ -1,0 +1,115 @@
+"""Leaderboard writing shared by every benchmark suite.
+
+Each suite produces rows (dicts of plain values) and hands them to :func:`write_report`,
+which writes ``<out>/<suite>.json`` and ``<out>/<suite>.md`` stamped with the command line,
+git SHA and machine, so every committed number says where it came from.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+
+def git_sha() -> str:
+    """Short SHA of HEAD, with ``-dirty`` when the tree has uncommitted changes."""
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        return sha + ("-dirty" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def machine() -> str:
+    """One line describing this machine: CPU model, core count, OS, Python."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (
+        f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, "
+        f"Python {platform.python_version()}"
+    )
+
+
+def provenance() -> dict[str, str]:
+    """Command, git SHA, machine and UTC date of this run."""
+    return {
+        "command": "pourbench " + " ".join(sys.argv[1:]),
+        "git_sha": git_sha(),
+        "machine": machine(),
+        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
+    }
+
+
+def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
+    """A GitHub markdown table of ``rows`` restricted to ``columns``."""
+
+    def fmt(v: Any) -> str:
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return "–" if v is None else str(v)
+
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(fmt(r.get(c)) for c in columns) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def write_report(
+    suite: str,
+    rows: Sequence[dict[str, Any]],
+    *,
+    out: str | Path = "leaderboard",
+    title: str,
+    body_md: str,
+    extra: dict[str, Any] | None = None,
+) -> tuple[Path, Path]:
+    """Write ``<out>/<suite>.json`` (rows + provenance) and ``<out>/<suite>.md``.
+
+    Args:
+        suite: file stem, e.g. ``"fluids"``.
+        rows: one dict per measured case.
+        out: folder to write into (created if missing).
+        title: markdown heading.
+        body_md: the suite's tables and notes in markdown (provenance is added here).
+        extra: more top-level JSON fields.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    prov = provenance()
+    doc = {"suite": suite, **prov, **(extra or {}), "rows": list(rows)}
+    json_path = out / f"{suite}.json"
+    json_path.write_text(json.dumps(doc, indent=2) + "\n")
+    md = [
+        f"# {title}",
+        "",
+        f"- command: `{prov['command']}`",
+        f"- git SHA: `{prov['git_sha']}`",
+        f"- machine: {prov['machine']}",
+        f"- date: {prov['date']}",
+        "",
+        body_md.strip(),
+        "",
+    ]
+    md_path = out / f"{suite}.md"
+    md_path.write_text("\n".join(md))
+    return json_path, md_path
