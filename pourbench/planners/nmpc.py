@@ -1,0 +1,587 @@
+"""NMPC-MP: nonlinear model predictive control motion planner (thesis chapter 4, Algorithm 1).
+
+Written here by hand (numpy + MuJoCo kinematics); the QP subproblems go to proxsuite through
+qpsolvers. The model is ``q⁺ = q + u·t_s`` with joint-velocity inputs ``u``. The decision
+variable is ``U = [u_0, …, u_{ch−1}]`` (control horizon ``ch``); predicted configurations
+``Q = S_U U + Q_0`` over the prediction horizon ``ph`` hold the last input (Eq. 4.48–4.49).
+
+Cost (Eq. 4.51, without the constant stage-0 term)::
+
+    f(U) = Σ_{i=1}^{ph−1} e_iᵀ Q e_i + e_phᵀ P_f e_ph + Uᵀ R̄ U,
+    e_i = [T_d − T_i ; Π_d ξ_i]   (position error; vector part of the quaternion error, Eq. 4.47)
+
+Constraints, at every predicted step i = 1…ph: the signed distance between each arm capsule
+and each obstacle ≥ the safety distance (gradient ``nᵀ J(p_r)``, Eq. 4.60), joint-velocity
+bounds ``lb ≤ U ≤ ub``, and for joints with position limits ``q_min ≤ q_i ≤ q_max``, which are
+linear in U: per-step bounds on the accumulated velocities (for step 1 exactly the thesis'
+``(q_max − q_0)/t_s`` velocity bound).
+
+Solver: SQP. Each iteration solves a QP (Eq. 4.65) with either the damped-BFGS Hessian of the
+Lagrangian (Eq. 4.66–4.68, the thesis) or the Gauss-Newton Hessian ``2 JᵀJ`` of the
+least-squares cost, then a backtracking line search on the ℓ1 merit function (Eq. 4.69).
+Warm start: the previous solution shifted by one step with its last input repeated, made
+feasible by a restoration solve (Eq. 4.70: minimum-norm change of U subject to the
+linearised constraints, with slacks so it always has a solution). An iteration cap and an
+optional time budget bound each call.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import qpsolvers
+
+from pourbench.errors import InvalidParameterError
+from pourbench.planners.distance import Obstacle, capsule_obstacle_distances
+from pourbench.planners.kinematics import ArmKinematics, point_jacobian
+
+HessianKind = Literal["bfgs", "gauss_newton"]
+HESSIANS: tuple[str, ...] = ("bfgs", "gauss_newton")
+
+
+@dataclass(frozen=True)
+class NMPCConfig:
+    """NMPC-MP parameters (Table 4.2 defaults for the weights and horizons).
+
+    Attributes:
+        q_pos: stage weight on the position error (1/m²).
+        q_quat: stage weight on the quaternion-vector error.
+        pf_pos: terminal weight on the position error.
+        pf_quat: terminal weight on the quaternion-vector error.
+        r: input weight (s²/rad²).
+        ph: prediction horizon (steps).
+        ch: control horizon (steps), ``1 ≤ ch ≤ ph``.
+        ts: time step of the model and of the control loop (s). The thesis predicts 4 s with
+            ph = 20, so 0.2 s.
+        max_iter: SQP iteration cap per call.
+        safety_distance: minimum signed distance to every obstacle (m).
+        max_joint_speed: joint-speed bound (rad/s), a scalar or one value per joint.
+        hessian: ``"bfgs"`` (thesis) or ``"gauss_newton"``.
+        warm_start: shift the previous solution (True) or start every call from U = 0.
+        time_budget_s: stop iterating once a call has used this much time (s); None for no
+            budget.
+        step_tol: converged when the QP step's largest entry is below this (rad/s).
+        merit_rtol: converged when an iteration lowers the merit by less than this fraction.
+        activation_distance: pairs farther than safety + this (m) are left out of the QP (they
+            still count in the merit function and the feasibility checks).
+        joint_limit_margin: distance kept from joint-position limits (rad).
+        restoration_iters: iterations of the feasibility-restoration solve.
+    """
+
+    q_pos: float = 5.0
+    q_quat: float = 0.1
+    pf_pos: float = 50.0
+    pf_quat: float = 10.0
+    r: float = 2.0
+    ph: int = 20
+    ch: int = 10
+    ts: float = 0.2
+    max_iter: int = 20
+    safety_distance: float = 0.03
+    max_joint_speed: float | tuple[float, ...] = 0.6
+    hessian: HessianKind = "gauss_newton"
+    warm_start: bool = True
+    time_budget_s: float | None = None
+    step_tol: float = 1e-4
+    merit_rtol: float = 1e-6
+    activation_distance: float = 0.2
+    joint_limit_margin: float = 0.01
+    restoration_iters: int = 10
+
+    def __post_init__(self) -> None:
+        for name in ("q_pos", "q_quat", "pf_pos", "pf_quat", "r", "ts", "safety_distance"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise InvalidParameterError(f"{name} must be finite and >= 0, got {v!r}")
+        if self.r <= 0 or self.ts <= 0:
+            raise InvalidParameterError("r and ts must be > 0")
+        if not (1 <= self.ch <= self.ph):
+            raise InvalidParameterError(f"need 1 <= ch <= ph, got ch={self.ch}, ph={self.ph}")
+        if self.max_iter < 1:
+            raise InvalidParameterError(f"max_iter must be >= 1, got {self.max_iter}")
+        if self.hessian not in HESSIANS:
+            raise InvalidParameterError(f"hessian must be one of {HESSIANS}, got {self.hessian!r}")
+        speed = np.asarray(self.max_joint_speed, dtype=float)
+        if not np.all(np.isfinite(speed)) or np.any(speed <= 0):
+            raise InvalidParameterError("max_joint_speed must be finite and > 0")
+
+
+@dataclass
+class NMPCResult:
+    """Outcome of one NMPC-MP call.
+
+    Attributes:
+        u: the input to execute now, (n,) in rad/s.
+        U: the optimised inputs, (ch, n) in rad/s.
+        q_pred: predicted configurations q_0…q_ph, (ph + 1, n) in rad.
+        ee_pred: predicted end-effector positions, (ph + 1, 3) in m.
+        cost: cost f(U).
+        iterations: SQP iterations used.
+        converged: the SQP met its tolerance before the cap or the time budget.
+        feasible: every predicted signed distance ≥ safety distance (within 0.1 mm).
+        min_distance: smallest predicted signed distance over steps 1…ph (m; inf with no
+            obstacles).
+        restoration_iterations: iterations of the warm start's feasibility restoration.
+        solve_time_s: wall time of the call (s).
+        status: ``"converged"``, ``"iteration_cap"``, ``"time_budget"`` or ``"line_search"``.
+    """
+
+    u: np.ndarray
+    U: np.ndarray
+    q_pred: np.ndarray
+    ee_pred: np.ndarray
+    cost: float
+    iterations: int
+    converged: bool
+    feasible: bool
+    min_distance: float
+    restoration_iterations: int
+    solve_time_s: float
+    status: str
+
+
+def quat_error_matrix(goal_quat: np.ndarray) -> np.ndarray:
+    """Π_d of Eq. 4.46: ``Π_d ξ`` is the vector part of ``conj(ξ_d) ⊗ ξ`` (3×4)."""
+    w, x, y, z = goal_quat
+    return np.array([[-x, w, z, -y], [-y, -z, w, x], [-z, y, -x, w]])
+
+
+def quat_jacobian(quat: np.ndarray, jac_rot: np.ndarray) -> np.ndarray:
+    """Jacobian of the quaternion (w, x, y, z) from the world-frame rotational Jacobian.
+
+    With MuJoCo's convention ``ξ̇ = ½ ω ⊗ ξ`` (ω in the world frame), so
+    ``J_ξ = ½ [−pᵀ; w I − p×] J_ω`` (the world-frame form of Eq. 4.41). Broadcasts over
+    leading axes: quat (..., 4), jac_rot (..., 3, n) → (..., 4, n).
+    """
+    w = quat[..., 0]
+    p = quat[..., 1:]
+    x, y, z = p[..., 0], p[..., 1], p[..., 2]
+    zero = np.zeros_like(w)
+    skew = np.stack(
+        [
+            np.stack([zero, -z, y], -1),
+            np.stack([z, zero, -x], -1),
+            np.stack([-y, x, zero], -1),
+        ],
+        -2,
+    )
+    lower = w[..., None, None] * np.eye(3) - skew
+    top = -p[..., None, :]
+    Mq = np.concatenate([top, lower], axis=-2)  # (..., 4, 3)
+    return 0.5 * Mq @ jac_rot
+
+
+def horizon_matrix(ph: int, ch: int) -> np.ndarray:
+    """M of Eq. 4.48, (ph + 1, ch): q_i = q_0 + t_s Σ_j M[i, j] u_j, last input held."""
+    M = np.zeros((ph + 1, ch))
+    for i in range(1, ph + 1):
+        for j in range(ch):
+            if j < ch - 1:
+                M[i, j] = 1.0 if j < i else 0.0
+            else:
+                M[i, j] = max(0, i - (ch - 1))
+    return M
+
+
+@dataclass
+class _Eval:
+    """Everything evaluated at one U."""
+
+    U: np.ndarray
+    Q: np.ndarray
+    f: float
+    grad: np.ndarray
+    Jr: np.ndarray
+    r: np.ndarray
+    ee_pos: np.ndarray
+    sd: np.ndarray  # (P,) flattened over (ph, K, L)
+    dsd: np.ndarray  # (P, nU)
+    lin_slack: np.ndarray  # (nlin,) ≥ 0 when the linear joint-limit rows hold
+
+
+@dataclass
+class _Problem:
+    """One NMPC problem: current state, goal and obstacles."""
+
+    q0: np.ndarray
+    goal_pos: np.ndarray
+    goal_quat: np.ndarray
+    obstacles: Sequence[Obstacle]
+    ee0: np.ndarray
+    Pi: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.Pi = quat_error_matrix(self.goal_quat)
+
+
+class NMPCPlanner:
+    """NMPC-MP for one arm (see the module docstring).
+
+    Args:
+        kin: the arm's kinematics (joints, end-effector site, collision capsules).
+        config: parameters; Table 4.2 defaults.
+    """
+
+    def __init__(self, kin: ArmKinematics, config: NMPCConfig | None = None) -> None:
+        self.kin = kin
+        self.config = config or NMPCConfig()
+        c = self.config
+        n = kin.n
+        self.n = n
+        self.nU = n * c.ch
+        speed = np.broadcast_to(np.asarray(c.max_joint_speed, dtype=float), (n,)).copy()
+        self.u_max = speed
+        self.M = horizon_matrix(c.ph, c.ch)
+        self.TsM = c.ts * self.M[1:]  # (ph, ch) rows for q_1..q_ph
+        self.step_times = c.ts * np.arange(1, c.ph + 1)  # (s) of predicted steps 1..ph
+        # Residual weights: stages 1..ph−1 use Q, stage ph uses P_f.
+        w = np.empty((c.ph, 6))
+        w[:, :3] = np.sqrt(c.q_pos)
+        w[:, 3:] = np.sqrt(c.q_quat)
+        w[-1, :3] = np.sqrt(c.pf_pos)
+        w[-1, 3:] = np.sqrt(c.pf_quat)
+        self.w = w
+        rbar = np.full(c.ch, c.r)
+        rbar[-1] = c.r * (c.ph - c.ch + 1)
+        self.sqrt_rbar = np.repeat(np.sqrt(rbar), n)
+        self.lim = np.flatnonzero(np.isfinite(kin.lower) | np.isfinite(kin.upper))
+        # Linear rows for joint-position limits: A_lin U gives ts Σ_j M[i,j] u_j[lim].
+        rows = []
+        for i in range(c.ph):
+            for jj in self.lim:
+                row = np.zeros((c.ch, n))
+                row[:, jj] = self.TsM[i]
+                rows.append(row.reshape(-1))
+        self.A_lin = np.array(rows) if rows else np.zeros((0, self.nU))
+        self._U_prev: np.ndarray | None = None
+        self.last_cold_iterations: int | None = None
+
+    # ----------------------------------------------------------------- public API
+    def reset(self) -> None:
+        """Forget the warm start."""
+        self._U_prev = None
+
+    def plan(
+        self,
+        q0: np.ndarray,
+        goal_pos: np.ndarray,
+        goal_quat: np.ndarray,
+        obstacles: Sequence[Obstacle] = (),
+    ) -> NMPCResult:
+        """Solve one NMPC problem from configuration ``q0``.
+
+        Args:
+            q0: current joint positions (n,) in rad.
+            goal_pos: goal end-effector position (3,) in m.
+            goal_quat: goal orientation quaternion (w, x, y, z); normalised here.
+            obstacles: obstacles at their current poses; one with a nonzero ``velocity`` is
+                predicted to move at that velocity over the horizon (zero velocity: held
+                still over the horizon, as in the thesis).
+
+        Returns:
+            An :class:`NMPCResult`; its ``u`` is the input to apply for ``ts`` seconds.
+
+        Raises:
+            InvalidParameterError: a NaN/inf or wrongly shaped input.
+        """
+        t_start = time.perf_counter()
+        c = self.config
+        q0 = np.asarray(q0, dtype=float).reshape(-1)
+        goal_pos = np.asarray(goal_pos, dtype=float).reshape(-1)
+        goal_quat = np.asarray(goal_quat, dtype=float).reshape(-1)
+        if q0.shape != (self.n,) or not np.all(np.isfinite(q0)):
+            raise InvalidParameterError(f"q0 must be {self.n} finite numbers, got {q0}")
+        if goal_pos.shape != (3,) or not np.all(np.isfinite(goal_pos)):
+            raise InvalidParameterError(f"goal position must be 3 finite numbers, got {goal_pos}")
+        qn = np.linalg.norm(goal_quat) if goal_quat.shape == (4,) else np.nan
+        if not np.isfinite(qn) or qn < 1e-9:
+            raise InvalidParameterError(
+                f"goal quaternion must be 4 finite numbers, got {goal_quat}"
+            )
+        prob = _Problem(
+            q0, goal_pos, goal_quat / qn, tuple(obstacles), self.kin.forward(q0).ee_pos[0]
+        )
+        lo, hi = self._limit_bounds(q0)
+
+        if c.warm_start and self._U_prev is not None:
+            U0 = np.concatenate([self._U_prev[self.n :], self._U_prev[-self.n :]])
+        else:
+            U0 = np.zeros(self.nU)
+        U0 = np.clip(U0, -np.tile(self.u_max, c.ch), np.tile(self.u_max, c.ch))
+        ev = self._evaluate(prob, U0, lo, hi)
+        ev, n_rest = self._restore(prob, ev, lo, hi)
+
+        ev, iters, status = self._sqp(prob, ev, lo, hi, t_start)
+        self._U_prev = ev.U.copy()
+        sd_min = float(ev.sd.min()) if ev.sd.size else float("inf")
+        return NMPCResult(
+            u=ev.U[: self.n].copy(),
+            U=ev.U.reshape(c.ch, self.n).copy(),
+            q_pred=ev.Q.copy(),
+            ee_pred=ev.ee_pos.copy(),
+            cost=ev.f,
+            iterations=iters,
+            converged=status == "converged",
+            feasible=bool(sd_min >= c.safety_distance - 1e-4),
+            min_distance=sd_min,
+            restoration_iterations=n_rest,
+            solve_time_s=time.perf_counter() - t_start,
+            status=status,
+        )
+
+    # ----------------------------------------------------- evaluation (f, ∇f, g, ∇g)
+    def _limit_bounds(self, q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-joint position bounds for the limited joints, relaxed to include q0."""
+        m = self.config.joint_limit_margin
+        lo = self.kin.lower[self.lim] + m
+        hi = self.kin.upper[self.lim] - m
+        q = q0[self.lim]
+        return np.minimum(lo, q), np.maximum(hi, q)
+
+    def _lin_rhs(self, q0: np.ndarray, lo: np.ndarray, hi: np.ndarray, U: np.ndarray):
+        """(upper slack, lower slack) of the joint-limit rows at U; both ≥ 0 when feasible."""
+        if not len(self.lim):
+            return np.zeros(0), np.zeros(0)
+        qi = np.tile(q0[self.lim], self.config.ph) + self.A_lin @ U
+        return np.tile(hi, self.config.ph) - qi, qi - np.tile(lo, self.config.ph)
+
+    def _evaluate(self, prob: _Problem, U: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> _Eval:
+        c, n = self.config, self.n
+        Uc = U.reshape(c.ch, n)
+        Q = prob.q0[None, :] + self.config.ts * self.M @ Uc  # (ph+1, n)
+        st = self.kin.forward_many(Q[1:])
+        # --- cost residuals
+        quat = st.ee_quat
+        sign = np.where(quat @ prob.goal_quat >= 0.0, 1.0, -1.0)
+        quat = quat * sign[:, None]
+        e = np.empty((c.ph, 6))
+        e[:, :3] = prob.goal_pos - st.ee_pos
+        e[:, 3:] = quat @ prob.Pi.T
+        Jq = quat_jacobian(quat, st.jac_rot)  # linear in ξ, so already for the signed ξ
+        de = np.empty((c.ph, 6, n))
+        de[:, :3] = -st.jac_pos
+        de[:, 3:] = prob.Pi @ Jq
+        r_track = (self.w * e).reshape(-1)
+        E = self.w[:, :, None] * de
+        J_track = np.einsum("ij,ian->iajn", self.TsM, E).reshape(6 * c.ph, self.nU)
+        r = np.concatenate([r_track, self.sqrt_rbar * U])
+        Jr = np.vstack([J_track, np.diag(self.sqrt_rbar)])
+        f = float(r @ r)
+        grad = 2.0 * Jr.T @ r
+        # --- collision constraints
+        if prob.obstacles and self.kin.num_capsules:
+            dist = capsule_obstacle_distances(
+                st.seg_a, st.seg_b, st.radius, prob.obstacles, times=self.step_times
+            )
+            PJ = point_jacobian(
+                st.body_pos[:, :, None, :],
+                st.body_jacp[:, :, None],
+                st.body_jacr[:, :, None],
+                dist.point_robot,
+            )  # (ph, K, L, 3, n)
+            G = np.einsum("tkla,tklan->tkln", dist.normal, PJ)
+            dsd = np.einsum("tj,tkln->tkljn", self.TsM, G).reshape(-1, self.nU)
+            sd = dist.sd.reshape(-1)
+        else:
+            sd = np.zeros(0)
+            dsd = np.zeros((0, self.nU))
+        up, low = self._lin_rhs(prob.q0, lo, hi, U)
+        return _Eval(
+            U=U,
+            Q=Q,
+            f=f,
+            grad=grad,
+            Jr=Jr,
+            r=r,
+            ee_pos=np.vstack([prob.ee0[None, :], st.ee_pos]),
+            sd=sd,
+            dsd=dsd,
+            lin_slack=np.concatenate([up, low]),
+        )
+
+    def cost_and_constraints(
+        self,
+        q0: np.ndarray,
+        goal_pos: np.ndarray,
+        goal_quat: np.ndarray,
+        obstacles: Sequence[Obstacle],
+        U: np.ndarray,
+    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+        """f(U), ∇f(U), the signed distances sd(U) (flattened over steps 1…ph, capsules,
+        obstacles; m) and their Jacobian ∂sd/∂U. For tests and diagnostics."""
+        gq = np.asarray(goal_quat, dtype=float)
+        q0 = np.asarray(q0, dtype=float)
+        prob = _Problem(
+            q0,
+            np.asarray(goal_pos, float),
+            gq / np.linalg.norm(gq),
+            obstacles,
+            self.kin.forward(q0).ee_pos[0],
+        )
+        lo, hi = self._limit_bounds(prob.q0)
+        ev = self._evaluate(prob, np.asarray(U, dtype=float), lo, hi)
+        return ev.f, ev.grad, ev.sd, ev.dsd
+
+    # ------------------------------------------------------------------- QP solve
+    def _solve_qp(
+        self,
+        H: np.ndarray,
+        g: np.ndarray,
+        ev: _Eval,
+        prob: _Problem,
+        elastic: bool,
+        rows: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Solve the QP subproblem; returns (d, multipliers of the selected sd rows)."""
+        c = self.config
+        umax = np.tile(self.u_max, c.ch)
+        lb, ub = -umax - ev.U, umax - ev.U
+        Gc = -ev.dsd[rows]
+        hc = ev.sd[rows] - c.safety_distance
+        nl = self.A_lin.shape[0]
+        G_parts = [Gc]
+        h_parts = [hc]
+        if nl:
+            G_parts += [self.A_lin, -self.A_lin]
+            h_parts += [ev.lin_slack[:nl], ev.lin_slack[nl:]]
+        G = np.vstack(G_parts)
+        h = np.concatenate(h_parts)
+        m = len(rows)
+        if elastic and m:
+            # Slack s ≥ 0 on every distance row: −∇sd d − s ≤ sd − TH, cost ρ Σ s + ε s².
+            rho = 1e4
+            nU = self.nU
+            Hs = np.zeros((nU + m, nU + m))
+            Hs[:nU, :nU] = H
+            Hs[nU:, nU:] = 1e-6 * np.eye(m)
+            gs = np.concatenate([g, np.full(m, rho)])
+            Gs = np.zeros((G.shape[0], nU + m))
+            Gs[:, :nU] = G
+            Gs[np.arange(m), nU + np.arange(m)] = -1.0
+            lbs = np.concatenate([lb, np.zeros(m)])
+            ubs = np.concatenate([ub, np.full(m, np.inf)])
+            H, g, G, lb, ub = Hs, gs, Gs, lbs, ubs
+        if G.shape[0] == 0:
+            G, h = None, None
+        problem = qpsolvers.Problem(H, g, G, h, lb=lb, ub=ub)
+        sol = qpsolvers.solve_problem(
+            problem, solver="proxqp", backend="dense", eps_abs=1e-9, eps_rel=0.0
+        )
+        if not sol.found or sol.x is None or not np.all(np.isfinite(sol.x)):
+            return None
+        lam = np.zeros(m) if sol.z is None else np.maximum(np.asarray(sol.z[:m]), 0.0)
+        return sol.x[: self.nU], lam
+
+    def _rows(self, ev: _Eval) -> np.ndarray:
+        c = self.config
+        return np.flatnonzero(ev.sd < c.safety_distance + c.activation_distance)
+
+    # -------------------------------------------------------------- restoration
+    def _restore(self, prob: _Problem, ev: _Eval, lo: np.ndarray, hi: np.ndarray):
+        """Feasibility restoration of the warm start (Eq. 4.70)."""
+        c = self.config
+        its = 0
+        H = np.eye(self.nU)
+        g0 = np.zeros(self.nU)
+        for its in range(1, c.restoration_iters + 1):
+            viol = self._violation(ev)
+            if viol <= 1e-6:
+                return ev, its - 1
+            out = self._solve_qp(H, g0, ev, prob, elastic=True, rows=self._rows(ev))
+            if out is None:
+                break
+            d, _ = out
+            # Backtrack on the total violation.
+            alpha = 1.0
+            for _ in range(8):
+                trial = self._evaluate(prob, ev.U + alpha * d, lo, hi)
+                if self._violation(trial) < viol:
+                    ev = trial
+                    break
+                alpha *= 0.5
+            else:
+                break
+        return ev, its
+
+    def _violation(self, ev: _Eval) -> float:
+        v = np.maximum(self.config.safety_distance - ev.sd, 0.0).sum()
+        return float(v + np.maximum(-ev.lin_slack, 0.0).sum())
+
+    # ---------------------------------------------------------------------- SQP
+    def _merit(self, ev: _Eval, mu: np.ndarray) -> float:
+        return ev.f + float(mu @ np.maximum(self.config.safety_distance - ev.sd, 0.0))
+
+    def _sqp(
+        self, prob: _Problem, ev: _Eval, lo: np.ndarray, hi: np.ndarray, t_start: float
+    ) -> tuple[_Eval, int, str]:
+        c = self.config
+        P = ev.sd.size
+        mu = np.zeros(P)
+        B = np.diag(2.0 * self.sqrt_rbar**2) if c.hessian == "bfgs" else None
+        status = "iteration_cap"
+        k = 0
+        while k < c.max_iter:
+            k += 1
+            if c.hessian == "bfgs":
+                H = B
+            else:
+                H = 2.0 * ev.Jr.T @ ev.Jr + 1e-9 * np.eye(self.nU)
+            rows = self._rows(ev)
+            out = self._solve_qp(H, ev.grad, ev, prob, elastic=False, rows=rows)
+            if out is None:
+                out = self._solve_qp(H, ev.grad, ev, prob, elastic=True, rows=rows)
+            if out is None:
+                status = "qp_failed"
+                break
+            d, lam_rows = out
+            lam = np.zeros(P)
+            lam[rows] = lam_rows
+            if np.max(np.abs(d)) < c.step_tol:
+                status = "converged"
+                break
+            mu = np.maximum(0.5 * (mu + lam), lam)
+            phi0 = self._merit(ev, mu)
+            viol0 = np.maximum(c.safety_distance - ev.sd, 0.0)
+            dphi = float(ev.grad @ d - mu @ viol0)
+            alpha = 1.0
+            new = None
+            for _ in range(12):
+                trial = self._evaluate(prob, ev.U + alpha * d, lo, hi)
+                if self._merit(trial, mu) <= phi0 + 1e-4 * alpha * min(dphi, 0.0):
+                    new = trial
+                    break
+                alpha *= 0.5
+            if new is None:
+                status = "line_search"
+                break
+            if c.hessian == "bfgs":
+                B = self._bfgs(B, alpha * d, new, ev, lam)
+            phi1 = self._merit(new, mu)
+            ev = new
+            if phi0 - phi1 <= c.merit_rtol * max(abs(phi0), 1e-12) and self._violation(ev) <= 1e-6:
+                status = "converged"
+                break
+            if c.time_budget_s is not None and time.perf_counter() - t_start > c.time_budget_s:
+                status = "time_budget"
+                break
+        return ev, k, status
+
+    @staticmethod
+    def _bfgs(B: np.ndarray, s: np.ndarray, new: _Eval, old: _Eval, lam: np.ndarray) -> np.ndarray:
+        """Damped BFGS update of the Lagrangian Hessian (Eq. 4.66–4.68)."""
+        # ∇L = ∇f + Σ λ_i ∇g_i with g = TH − sd, so ∇g = −∇sd.
+        gl_new = new.grad - new.dsd.T @ lam if lam.size else new.grad
+        gl_old = old.grad - old.dsd.T @ lam if lam.size else old.grad
+        delta = gl_new - gl_old
+        Bs = B @ s
+        sBs = float(s @ Bs)
+        if sBs <= 1e-16:
+            return B
+        sd_ = float(s @ delta)
+        theta = 1.0 if sd_ >= 0.2 * sBs else 0.8 * sBs / (sBs - sd_)
+        q = theta * delta + (1.0 - theta) * Bs
+        return B + np.outer(q, q) / float(q @ s) - np.outer(Bs, Bs) / sBs
