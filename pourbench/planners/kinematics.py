@@ -123,9 +123,9 @@ class ArmKinematics:
         for name, gid in zip(self.collision_geoms, self.geom_ids, strict=True):
             if int(model.geom_type[gid]) not in _CAPSULE_TYPES:
                 raise PourbenchError(f"collision geom {name!r} must be a capsule or cylinder")
-        self.geom_body = model.geom_bodyid[self.geom_ids] if len(self.geom_ids) else np.zeros(0)
-        self.radius = model.geom_size[self.geom_ids, 0].copy() if len(self.geom_ids) else None
-        self.half_length = model.geom_size[self.geom_ids, 1].copy() if len(self.geom_ids) else None
+        self.geom_body = np.asarray(model.geom_bodyid[self.geom_ids], dtype=int)
+        self.radius = model.geom_size[self.geom_ids, 0].copy()
+        self.half_length = model.geom_size[self.geom_ids, 1].copy()
         if base_qpos is None:
             key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
             base_qpos = model.key_qpos[key] if key >= 0 else model.qpos0
@@ -177,8 +177,10 @@ class ArmKinematics:
         """Kinematics at one configuration ``q`` (n,); arrays keep a leading axis of 1."""
         return self.forward_many(np.asarray(q, dtype=float)[None, :])
 
-    def forward_many(self, qs: np.ndarray) -> ArmState:
+    def forward_many(self, qs: np.ndarray, jacobians: bool = True) -> ArmState:
         """Kinematics at ``T`` configurations ``qs`` (T, n).
+
+        With ``jacobians=False`` the Jacobian arrays are left zero (faster; poses only).
 
         Raises:
             InvalidParameterError: ``qs`` has the wrong shape or is not finite.
@@ -197,31 +199,42 @@ class ArmKinematics:
         seg_a = np.empty((T, K, 3))
         seg_b = np.empty((T, K, 3))
         body_pos = np.empty((T, K, 3))
-        body_jacp = np.empty((T, K, 3, n))
-        body_jacr = np.empty((T, K, 3, n))
+        body_jacp = np.zeros((T, K, 3, n))
+        body_jacr = np.zeros((T, K, 3, n))
+        jac_pos[:] = 0.0
+        jac_rot[:] = 0.0
         d.qpos[:] = self.base_qpos
+        gids, bids = self.geom_ids, self.geom_body
+        gpos = np.empty((T, K, 3))
+        gaxis = np.empty((T, K, 3))
+        site_mat = np.empty((T, 9))
+        jacp, jacr, dadr = self._jacp, self._jacr, self.dadr
         for t in range(T):
             d.qpos[self.qadr] = qs[t]
             mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
             ee_pos[t] = d.site_xpos[self.site_id]
-            mujoco.mju_mat2Quat(self._quat, d.site_xmat[self.site_id])
+            site_mat[t] = d.site_xmat[self.site_id]
+            if K:
+                gpos[t] = d.geom_xpos[gids]
+                gaxis[t] = d.geom_xmat[gids][:, 2::3]  # z axis: third column of row-major xmat
+                body_pos[t] = d.xpos[bids]
+            if jacobians:
+                mujoco.mj_comPos(m, d)
+                mujoco.mj_jacSite(m, d, jacp, jacr, self.site_id)
+                jac_pos[t] = jacp[:, dadr]
+                jac_rot[t] = jacr[:, dadr]
+                for k in range(K):
+                    mujoco.mj_jacBody(m, d, jacp, jacr, bids[k])
+                    body_jacp[t, k] = jacp[:, dadr]
+                    body_jacr[t, k] = jacr[:, dadr]
+        for t in range(T):
+            mujoco.mju_mat2Quat(self._quat, site_mat[t])
             ee_quat[t] = self._quat
-            mujoco.mj_jacSite(m, d, self._jacp, self._jacr, self.site_id)
-            jac_pos[t] = self._jacp[:, self.dadr]
-            jac_rot[t] = self._jacr[:, self.dadr]
-            for k in range(K):
-                gid = self.geom_ids[k]
-                center = d.geom_xpos[gid]
-                axis = d.geom_xmat[gid].reshape(3, 3)[:, 2]
-                seg_a[t, k] = center - self.half_length[k] * axis
-                seg_b[t, k] = center + self.half_length[k] * axis
-                b = self.geom_body[k]
-                body_pos[t, k] = d.xpos[b]
-                mujoco.mj_jacBody(m, d, self._jacp, self._jacr, b)
-                body_jacp[t, k] = self._jacp[:, self.dadr]
-                body_jacr[t, k] = self._jacr[:, self.dadr]
-        radius = self.radius if self.radius is not None else np.zeros(0)
+        if K:
+            half = self.half_length[None, :, None]
+            seg_a[:] = gpos - half * gaxis
+            seg_b[:] = gpos + half * gaxis
+        radius = self.radius
         return ArmState(
             q=qs.copy(),
             ee_pos=ee_pos,

@@ -1,0 +1,63 @@
+"""What every offline baseline returns, and helpers to check and execute a joint path."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from pourbench.planners.distance import Obstacle, capsule_obstacle_distances
+from pourbench.planners.kinematics import ArmKinematics
+
+
+@dataclass
+class OfflinePlan:
+    """A joint-space path from an offline planner.
+
+    Attributes:
+        path: waypoints (N, n) in rad, first = start, last = goal when ``success``.
+        success: a collision-free path (by the planner's own check) was found.
+        planning_time_s: wall time of planning (s).
+        reason: short status text.
+        iterations: optimiser iterations (STOMP/CHOMP), 0 for sampling planners.
+    """
+
+    path: np.ndarray
+    success: bool
+    planning_time_s: float
+    reason: str
+    iterations: int = 0
+
+
+def densify(path: np.ndarray, max_step: float) -> np.ndarray:
+    """Linear interpolation of a joint path so no joint moves more than ``max_step`` (rad)."""
+    out = [path[0]]
+    for a, b in itertools.pairwise(path):
+        k = max(1, int(np.ceil(np.max(np.abs(b - a)) / max_step)))
+        for s in np.arange(1, k + 1) / k:
+            out.append(a + s * (b - a))
+    return np.array(out)
+
+
+def path_min_distance(
+    kin: ArmKinematics, obstacles: Sequence[Obstacle], path: np.ndarray, max_step: float = 0.01
+) -> float:
+    """Smallest capsule–obstacle signed distance along a densified path (m); inf if none."""
+    if not obstacles or kin.num_capsules == 0:
+        return float("inf")
+    dense = densify(path, max_step)
+    st = kin.forward_many(dense, jacobians=False)
+    return float(capsule_obstacle_distances(st.seg_a, st.seg_b, st.radius, obstacles).sd.min())
+
+
+def second_difference_matrix(T: int) -> np.ndarray:
+    """(T + 2, T) finite-difference acceleration operator on T interior waypoints (the two
+    fixed end points enter through a separate offset)."""
+    A = np.zeros((T + 2, T))
+    for i in range(T):
+        A[i, i] += 1.0
+        A[i + 1, i] += -2.0
+        A[i + 2, i] += 1.0
+    return A

@@ -1,0 +1,102 @@
+"""OMPL sampling planners (the real library): RRT-Connect, RRT and PRM* in joint space.
+
+Validity of a state = MuJoCo ``mj_geomDistance`` clearance between the arm's collision geoms
+and every obstacle geom of a :class:`~pourbench.planners.world.PlanningWorld` ≥ the same
+safety distance NMPC-MP uses. Paths are returned as OMPL found them (no shortcutting), as in
+the thesis' comparison.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from pourbench.errors import UnknownNameError
+from pourbench.planners.baselines.common import OfflinePlan
+from pourbench.planners.kinematics import ArmKinematics
+from pourbench.planners.world import PlanningWorld
+
+OMPL_PLANNERS: tuple[str, ...] = ("rrtconnect", "rrt", "prmstar")
+_SEEDED = False
+
+
+def plan_ompl(
+    world: PlanningWorld,
+    kin: ArmKinematics,
+    q_start: np.ndarray,
+    q_goal: np.ndarray,
+    planner: str = "rrtconnect",
+    *,
+    safety_distance: float,
+    time_limit: float = 5.0,
+    span: float = np.pi,
+    resolution: float = 0.002,
+    seed: int = 0,
+) -> OfflinePlan:
+    """Plan from ``q_start`` to ``q_goal`` (rad) with an OMPL planner.
+
+    Args:
+        world: MuJoCo world for validity checks.
+        kin: the arm (joint order, limits, the full configuration of the other joints).
+        q_start: start configuration.
+        q_goal: goal configuration (e.g. from mink IK).
+        planner: ``"rrtconnect"``, ``"rrt"`` or ``"prmstar"``.
+        safety_distance: clearance a valid state needs (m).
+        time_limit: planning time limit (s); PRM* uses all of it (it keeps improving).
+        span: half-width of the joint box around start/goal for joints without limits (rad).
+        resolution: motion-check resolution as a fraction of the space's extent.
+        seed: OMPL's random seed (applied once per process, OMPL's own rule).
+
+    Raises:
+        UnknownNameError: unknown planner name.
+    """
+    from ompl import base as ob
+    from ompl import geometric as og
+    from ompl import util as ou
+
+    classes = {"rrtconnect": og.RRTConnect, "rrt": og.RRT, "prmstar": og.PRMstar}
+    if planner not in classes:
+        raise UnknownNameError("planner", planner, OMPL_PLANNERS)
+    ou.setLogLevel(ou.LOG_ERROR)
+    global _SEEDED
+    if not _SEEDED:  # OMPL takes one seed per process (and rejects 0)
+        ou.RNG.setSeed(int(seed) + 1)
+        _SEEDED = True
+    n = kin.n
+    q_start = np.asarray(q_start, float)
+    q_goal = np.asarray(q_goal, float)
+    lo = np.where(np.isfinite(kin.lower), kin.lower, np.minimum(q_start, q_goal) - span)
+    hi = np.where(np.isfinite(kin.upper), kin.upper, np.maximum(q_start, q_goal) + span)
+    space = ob.RealVectorStateSpace(n)
+    bounds = ob.RealVectorBounds(n)
+    for i in range(n):
+        bounds.setLow(i, float(lo[i]))
+        bounds.setHigh(i, float(hi[i]))
+    space.setBounds(bounds)
+    ss = og.SimpleSetup(space)
+    qbuf = np.zeros(n)
+
+    def valid(state) -> bool:
+        for i in range(n):
+            qbuf[i] = state[i]
+        return world.clearance(kin.full_qpos(qbuf)) >= safety_distance
+
+    ss.setStateValidityChecker(valid)
+    start, goal = space.allocState(), space.allocState()
+    for i in range(n):
+        start[i] = float(q_start[i])
+        goal[i] = float(q_goal[i])
+    ss.setStartAndGoalStates(start, goal)
+    si = ss.getSpaceInformation()
+    si.setStateValidityCheckingResolution(resolution)
+    ss.setPlanner(classes[planner](si))
+    t0 = time.perf_counter()
+    status = ss.solve(time_limit)
+    elapsed = time.perf_counter() - t0
+    exact = bool(status) and ss.haveExactSolutionPath()
+    if not exact:
+        return OfflinePlan(np.array([q_start]), False, elapsed, f"OMPL: {status}")
+    path = ss.getSolutionPath()
+    pts = np.array([[path.getState(k)[i] for i in range(n)] for k in range(path.getStateCount())])
+    return OfflinePlan(pts, True, elapsed, "exact solution")

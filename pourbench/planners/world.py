@@ -1,0 +1,155 @@
+"""MuJoCo-side planning world: a robot with its obstacles as geoms, for distance queries.
+
+NMPC-MP uses the analytic distances of :mod:`pourbench.planners.distance`; everything else —
+mink's collision-avoidance limit, the OMPL validity checker and the benchmark's clearance and
+collision measurements — asks MuJoCo (``mj_geomDistance``) on this model. Obstacles live on
+mocap bodies so moving ones are updated without recompiling.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+
+from pourbench.errors import InvalidParameterError, UnknownNameError
+from pourbench.planners.distance import Box, Obstacle, Sphere
+
+COLLISION_BIT = 1 << 4
+"""contype/conaffinity bit given to planner geoms in the world copy (for mink's pair filter;
+the world model is only used for kinematics and distance queries, never stepped)."""
+
+
+def _quat_z_to(axis: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) rotating +z onto ``axis``."""
+    z = np.array([0.0, 0.0, 1.0])
+    a = axis / np.linalg.norm(axis)
+    c = float(z @ a)
+    if c < -1.0 + 1e-12:
+        return np.array([0.0, 1.0, 0.0, 0.0])
+    v = np.cross(z, a)
+    q = np.array([1.0 + c, *v])
+    return q / np.linalg.norm(q)
+
+
+def _pose(ob: Obstacle) -> tuple[np.ndarray, np.ndarray]:
+    if isinstance(ob, Sphere):
+        return ob.center, np.array([1.0, 0, 0, 0])
+    if isinstance(ob, Box):
+        q = np.zeros(4)
+        mujoco.mju_mat2Quat(q, ob.rotation.reshape(-1))
+        return ob.center, q
+    return 0.5 * (ob.a + ob.b), _quat_z_to(ob.b - ob.a)
+
+
+class PlanningWorld:
+    """A robot model plus obstacle geoms.
+
+    Args:
+        spec: a fresh MjSpec of the robot (it is modified).
+        robot_geoms: the planned arm's collision geoms.
+        obstacles: obstacle primitives, added as geoms on mocap bodies ``obstacle_<i>``.
+        static_geoms: more geoms of the robot that count as obstacles (body boxes, the other
+            arm's capsules).
+        base_qpos: full configuration for joints not being changed (default: keyframe
+            ``home`` or ``qpos0``).
+
+    Raises:
+        UnknownNameError: a geom name is missing from the robot.
+    """
+
+    def __init__(
+        self,
+        spec: mujoco.MjSpec,
+        robot_geoms: Sequence[str],
+        obstacles: Sequence[Obstacle] = (),
+        static_geoms: Sequence[str] = (),
+        base_qpos: np.ndarray | None = None,
+    ) -> None:
+        names = {g.name for g in spec.geoms}
+        for g in (*robot_geoms, *static_geoms):
+            if g not in names:
+                raise UnknownNameError("geom", g, sorted(n for n in names if n))
+        for g in spec.geoms:
+            if g.name in robot_geoms or g.name in static_geoms:
+                g.contype = COLLISION_BIT
+                g.conaffinity = COLLISION_BIT
+        self._kinds = []
+        for i, ob in enumerate(obstacles):
+            pos, quat = _pose(ob)
+            body = spec.worldbody.add_body(name=f"obstacle_{i}", mocap=True, pos=pos, quat=quat)
+            if isinstance(ob, Sphere):
+                gtype, size = mujoco.mjtGeom.mjGEOM_SPHERE, [ob.radius, 0, 0]
+            elif isinstance(ob, Box):
+                gtype, size = mujoco.mjtGeom.mjGEOM_BOX, list(ob.half_extents)
+            else:
+                half = 0.5 * float(np.linalg.norm(ob.b - ob.a))
+                gtype, size = mujoco.mjtGeom.mjGEOM_CAPSULE, [ob.radius, half, 0]
+            body.add_geom(
+                name=f"obstacle_{i}",
+                type=gtype,
+                size=size,
+                contype=COLLISION_BIT,
+                conaffinity=COLLISION_BIT,
+                group=3,
+                rgba=[0.9, 0.3, 0.2, 0.6],
+            )
+            self._kinds.append(type(ob))
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        gid = lambda n: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n)  # noqa: E731
+        self.robot_geom_ids = [gid(g) for g in robot_geoms]
+        self.obstacle_geom_ids = [gid(f"obstacle_{i}") for i in range(len(obstacles))]
+        self.static_geom_ids = [gid(g) for g in static_geoms]
+        self.mocap_ids = [
+            m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"obstacle_{i}")]
+            for i in range(len(obstacles))
+        ]
+        if base_qpos is None:
+            key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
+            base_qpos = m.key_qpos[key] if key >= 0 else m.qpos0
+        self.data.qpos[:] = base_qpos
+        self.set_obstacles(obstacles)
+        self._fromto = np.zeros(6)
+
+    @property
+    def obstacle_geoms(self) -> list[int]:
+        """Geom ids that count as obstacles (added primitives and static robot geoms)."""
+        return self.obstacle_geom_ids + self.static_geom_ids
+
+    def set_obstacles(self, obstacles: Sequence[Obstacle]) -> None:
+        """Move the obstacle bodies to the poses of ``obstacles`` (same count and kinds).
+
+        Raises:
+            InvalidParameterError: the count or a kind differs from construction.
+        """
+        if len(obstacles) != len(self.mocap_ids):
+            raise InvalidParameterError(
+                f"world has {len(self.mocap_ids)} obstacles, got {len(obstacles)}"
+            )
+        for i, ob in enumerate(obstacles):
+            if not isinstance(ob, self._kinds[i]):
+                raise InvalidParameterError(f"obstacle {i} must stay a {self._kinds[i].__name__}")
+            pos, quat = _pose(ob)
+            self.data.mocap_pos[self.mocap_ids[i]] = pos
+            self.data.mocap_quat[self.mocap_ids[i]] = quat
+
+    def set_qpos(self, qpos: np.ndarray) -> None:
+        """Set the full configuration and update kinematics."""
+        self.data.qpos[:] = qpos
+        mujoco.mj_kinematics(self.model, self.data)
+
+    def clearance(self, qpos: np.ndarray | None = None, distmax: float = 1.0) -> float:
+        """Smallest signed distance (m) between the arm's geoms and every obstacle geom,
+        by ``mj_geomDistance``; ``distmax`` when nothing is closer."""
+        if qpos is not None:
+            self.data.qpos[:] = qpos
+        mujoco.mj_kinematics(self.model, self.data)
+        best = distmax
+        for a in self.robot_geom_ids:
+            for b in self.obstacle_geoms:
+                d = mujoco.mj_geomDistance(self.model, self.data, a, b, distmax, self._fromto)
+                best = min(best, d)
+        return float(best)
