@@ -8,12 +8,17 @@ carry gravity compensation, so the robot stands still at ``home`` with zero cont
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import mujoco
+import numpy as np
 
-from pourbench.errors import UnknownNameError
+from pourbench.containers import DEFAULT_MAX_ERROR, Container, add_container_body, get_container
+from pourbench.errors import InvalidParameterError, UnknownNameError
 
 ROBOTS: tuple[str, ...] = ("movo", "panda")
 """Names accepted by :func:`load_robot` and :func:`robot_spec`."""
@@ -40,3 +45,362 @@ def robot_spec(name: str) -> mujoco.MjSpec:
 def load_robot(name: str) -> mujoco.MjModel:
     """Compiled model of robot ``name`` ("movo" or "panda") alone, base fixed at the origin."""
     return robot_spec(name).compile()
+
+
+# ----------------------------------------------------------------------------------- pour scenes
+
+TABLE_HEIGHT = 0.75
+"""Height of the table top, m."""
+
+STATIC_CONTYPE = 1
+"""Contact bit of static geoms (floor, table, obstacles): robots and containers touch them."""
+
+_GRIPPER = {  # robot -> (body holding the pouring container, its grasp site)
+    "movo": ("right_gripper", "right_ee"),
+    "panda": ("hand", "tcp"),
+}
+_PANDA_PEDESTAL = 0.2  # the Panda stands on a 0.2 m pedestal beside the table
+
+
+@dataclass(frozen=True)
+class PourScene:
+    """A composed pouring scene.
+
+    Attributes:
+        spec: the MjSpec it was compiled from (edit and recompile to extend it).
+        model: the compiled model.
+        robot: "movo", "panda" or None.
+        pouring: the pouring container; its body is called ``"pouring"``.
+        receiving: the receiving container; its body is called ``"receiving"``.
+        scale_force: force sensor (3 values, N, in the sensor site frame) that weighs the
+            receiving container: the left F/T sensor on the Movo, a table scale otherwise.
+        scale_torque: the matching torque sensor (N m).
+        pouring_mocap: whether ``"pouring"`` is a mocap body (``robot=None``).
+    """
+
+    spec: mujoco.MjSpec
+    model: mujoco.MjModel
+    robot: str | None
+    pouring: Container
+    receiving: Container
+    scale_force: str
+    scale_torque: str
+    pouring_mocap: bool
+
+    def make_data(self) -> mujoco.MjData:
+        """Fresh data at the robot's ``home`` keyframe (if any), kinematics computed."""
+        data = mujoco.MjData(self.model)
+        if self.model.nkey:
+            mujoco.mj_resetDataKeyframe(self.model, data, self.model.key("home").id)
+        mujoco.mj_forward(self.model, data)
+        return data
+
+
+def _site_matrix(model: mujoco.MjModel, data: mujoco.MjData, site: str) -> np.ndarray:
+    h = np.eye(4)
+    h[:3, :3] = data.site_xmat[model.site(site).id].reshape(3, 3)
+    h[:3, 3] = data.site_xpos[model.site(site).id]
+    return h
+
+
+def _pose_matrix(pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    h = np.eye(4)
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, np.asarray(quat, dtype=float))
+    h[:3, :3] = rot.reshape(3, 3)
+    h[:3, 3] = pos
+    return h
+
+
+def _pos_quat(h: np.ndarray) -> tuple[list[float], list[float]]:
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, h[:3, :3].ravel())
+    return h[:3, 3].tolist(), quat.tolist()
+
+
+def _grasp_in_body(
+    model: mujoco.MjModel, body: str, site: str, container: Container
+) -> tuple[list[float], list[float]]:
+    """Pose, in ``body``'s frame, that puts the container's mount site on ``site``."""
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    b = model.body(body).id
+    body_h = np.eye(4)
+    body_h[:3, :3] = data.xmat[b].reshape(3, 3)
+    body_h[:3, 3] = data.xpos[b]
+    site_in_body = np.linalg.inv(body_h) @ _site_matrix(model, data, site)
+    mount = _pose_matrix(*container.mount_pose())
+    return _pos_quat(site_in_body @ np.linalg.inv(mount))
+
+
+def _add_environment(spec: mujoco.MjSpec, table_center: tuple[float, float], size: tuple) -> None:
+    spec.option.timestep = 0.002
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    world = spec.worldbody
+    world.add_light(name="sun", pos=[0.5, -0.5, 3.0], dir=[-0.2, 0.2, -1.0])
+    world.add_geom(
+        name="floor",
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[5.0, 5.0, 0.1],
+        rgba=[0.82, 0.82, 0.8, 1.0],
+        contype=STATIC_CONTYPE,
+        conaffinity=0,
+    )
+    table = world.add_body(name="table", pos=[table_center[0], table_center[1], 0.0])
+    table.add_geom(
+        name="table_top",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        pos=[0.0, 0.0, TABLE_HEIGHT - 0.02],
+        size=[size[0], size[1], 0.02],
+        rgba=[0.6, 0.45, 0.3, 1.0],
+        contype=STATIC_CONTYPE,
+        conaffinity=0,
+    )
+    for sx in (-1, 1):
+        for sy in (-1, 1):
+            table.add_geom(
+                type=mujoco.mjtGeom.mjGEOM_BOX,
+                pos=[sx * (size[0] - 0.04), sy * (size[1] - 0.04), (TABLE_HEIGHT - 0.04) / 2],
+                size=[0.025, 0.025, (TABLE_HEIGHT - 0.04) / 2],
+                rgba=[0.45, 0.33, 0.22, 1.0],
+                contype=STATIC_CONTYPE,
+                conaffinity=0,
+            )
+    world.add_camera(name="overview", pos=[1.9, -1.1, 1.7], xyaxes=[0.5, 0.87, 0, -0.4, 0.23, 0.89])
+
+
+def _add_scale(spec: mujoco.MjSpec, body: mujoco.MjsBody) -> tuple[str, str]:
+    body.add_site(name="scale", size=[0.01] * 3)
+    force = spec.add_sensor(
+        name="scale_force",
+        type=mujoco.mjtSensor.mjSENS_FORCE,
+        objtype=mujoco.mjtObj.mjOBJ_SITE,
+        objname="scale",
+    )
+    torque = spec.add_sensor(
+        name="scale_torque",
+        type=mujoco.mjtSensor.mjSENS_TORQUE,
+        objtype=mujoco.mjtObj.mjOBJ_SITE,
+        objname="scale",
+    )
+    return force.name, torque.name
+
+
+def build_pour_scene(
+    pouring: str = "training",
+    receiving: str = "tray",
+    robot: str | None = None,
+    *,
+    max_error: float = DEFAULT_MAX_ERROR,
+) -> PourScene:
+    """Compose a pouring scene: table, the two containers and optionally a robot.
+
+    * ``robot=None``: the pouring container is a mocap body (its pose is the action), upright
+      above the receiving container, which stands on the table on a force/torque "scale".
+    * ``robot="movo"``: the pouring container is welded in the right gripper (mount site on
+      ``right_ee``), the receiving one in the left gripper (on ``left_ee``); the left wrist's
+      F/T sensor weighs it, as in the thesis.
+    * ``robot="panda"``: the pouring container is welded in the hand (mount on ``tcp``), the
+      receiving one stands on the table on a force/torque scale.
+
+    Held containers carry gravity compensation like the robot's links (a controller that knows
+    its payload); F/T sensors still measure their weight.
+
+    Args:
+        pouring: name of the pouring container (``containers.toml``).
+        receiving: name of the receiving container.
+        robot: None, "movo" or "panda".
+        max_error: container mesh accuracy, m.
+
+    Raises:
+        UnknownNameError: unknown robot or container (a ``ValueError`` listing the known ones).
+    """
+    if robot is not None and robot not in ROBOTS:
+        raise UnknownNameError("robot", robot, ROBOTS)
+    pour, recv = get_container(pouring), get_container(receiving)
+    if robot is None:
+        spec = mujoco.MjSpec()
+        spec.modelname = f"pour_{pouring}_{receiving}"
+        _add_environment(spec, (0.0, 0.0), (0.4, 0.5))
+        world = spec.worldbody
+        rbody = add_container_body(
+            spec, world, recv, name="receiving", pos=(0, 0, TABLE_HEIGHT), max_error=max_error
+        )
+        scale = _add_scale(spec, rbody)
+        lift = TABLE_HEIGHT + recv.rim_height + 0.05
+        add_container_body(
+            spec,
+            world,
+            pour,
+            name="pouring",
+            pos=(0.0, -recv.diameter / 4, lift),
+            mocap=True,
+            max_error=max_error,
+        )
+        return PourScene(spec, spec.compile(), None, pour, recv, *scale, True)
+
+    spec = robot_spec(robot)
+    spec.modelname = f"{robot}_pour_{pouring}_{receiving}"
+    bare = spec.compile()  # robot alone at qpos0: grasp offsets are relative to gripper bodies
+    if robot == "movo":
+        _add_environment(spec, (0.78, 0.0), (0.3, 0.5))
+        held = (
+            ("pouring", pour, *_GRIPPER["movo"]),
+            ("receiving", recv, "left_gripper", "left_ee"),
+        )
+        scale = ("left_ft_force", "left_ft_torque")
+    else:
+        base = spec.body("link_0")
+        base.pos = [0.0, 0.0, _PANDA_PEDESTAL]
+        spec.worldbody.add_geom(
+            name="pedestal",
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=[0.0, 0.0, _PANDA_PEDESTAL / 2],
+            size=[0.12, 0.12, _PANDA_PEDESTAL / 2],
+            rgba=[0.3, 0.3, 0.32, 1.0],
+            contype=STATIC_CONTYPE,
+            conaffinity=0,
+        )
+        _add_environment(spec, (0.65, 0.0), (0.3, 0.5))
+        held = (("pouring", pour, *_GRIPPER["panda"]),)
+        home = mujoco.MjData(bare)
+        mujoco.mj_resetDataKeyframe(bare, home, bare.key("home").id)
+        mujoco.mj_kinematics(bare, home)
+        tcp = home.site_xpos[bare.site("tcp").id] + (0.0, 0.0, _PANDA_PEDESTAL)
+        spot = (tcp[0] + pour.diameter / 2, tcp[1] + recv.diameter / 2 + 0.03, TABLE_HEIGHT)
+        rbody = add_container_body(
+            spec, spec.worldbody, recv, name="receiving", pos=spot, max_error=max_error
+        )
+        scale = _add_scale(spec, rbody)
+    for name, c, body, site in held:
+        pos, quat = _grasp_in_body(bare, body, site, c)
+        b = add_container_body(
+            spec, spec.body(body), c, name=name, pos=pos, quat=quat, max_error=max_error
+        )
+        b.gravcomp = 1.0
+    return PourScene(spec, spec.compile(), robot, pour, recv, *scale, False)
+
+
+# ------------------------------------------------------------------------------ planning scenes
+
+
+@dataclass(frozen=True)
+class ObstacleGeom:
+    """An obstacle of a planning scene, on its own mocap body.
+
+    Attributes:
+        kind: "sphere", "box" or "capsule".
+        size: MuJoCo geom size (sphere: radius; box: half sizes; capsule: radius, half length), m.
+        pos: initial position, m.
+        quat: initial orientation (w, x, y, z).
+    """
+
+    kind: str
+    size: tuple[float, ...]
+    pos: tuple[float, float, float]
+    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
+
+
+_OBSTACLE_TYPES = {
+    "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
+    "box": mujoco.mjtGeom.mjGEOM_BOX,
+    "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
+}
+
+
+def build_planning_scene(
+    robot: str,
+    obstacles: Sequence[ObstacleGeom] = (),
+    *,
+    table: bool = False,
+) -> mujoco.MjModel:
+    """Robot plus obstacles on mocap bodies ``obstacle_<i>`` (move them every step with
+    :func:`set_obstacle_pose`); optionally the table in front of the robot.
+
+    Obstacle geoms are static-class colliders (they touch robot geoms, so collisions show up
+    in ``data.contact``) and live in geom group 0.
+
+    Raises:
+        UnknownNameError: unknown robot.
+        InvalidParameterError: an obstacle of unknown kind or with a non-positive size.
+    """
+    spec = robot_spec(robot)
+    spec.modelname = f"{robot}_planning"
+    if table:
+        _add_environment(spec, (0.78, 0.0) if robot == "movo" else (0.65, 0.0), (0.3, 0.5))
+    for i, ob in enumerate(obstacles):
+        if ob.kind not in _OBSTACLE_TYPES:
+            raise InvalidParameterError(
+                f"obstacle {i}: kind {ob.kind!r} not one of {sorted(_OBSTACLE_TYPES)}"
+            )
+        if not ob.size or not all(math.isfinite(s) and s > 0 for s in ob.size):
+            raise InvalidParameterError(f"obstacle {i}: sizes must be > 0, got {ob.size!r}")
+        body = spec.worldbody.add_body(
+            name=f"obstacle_{i}", pos=list(ob.pos), quat=list(ob.quat), mocap=True
+        )
+        body.add_geom(
+            name=f"obstacle_{i}",
+            type=_OBSTACLE_TYPES[ob.kind],
+            size=[*ob.size, *([0.0] * (3 - len(ob.size)))],
+            rgba=[1.0, 0.5, 0.1, 0.8],
+            contype=STATIC_CONTYPE,
+            conaffinity=0,
+        )
+    return spec.compile()
+
+
+def set_obstacle_pose(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    name: str,
+    pos: Sequence[float],
+    quat: Sequence[float] | None = None,
+) -> None:
+    """Move mocap obstacle (or any mocap body) ``name`` to ``pos`` (m) and ``quat`` (w, x, y, z).
+
+    Raises:
+        UnknownNameError: no mocap body called ``name``.
+    """
+    mocap = [model.body(b).name for b in range(model.nbody) if model.body_mocapid[b] >= 0]
+    if name not in mocap:
+        raise UnknownNameError("mocap body", name, mocap)
+    mid = model.body_mocapid[model.body(name).id]
+    data.mocap_pos[mid] = pos
+    if quat is not None:
+        data.mocap_quat[mid] = quat
+
+
+def body_clearance(
+    model: mujoco.MjModel,
+    data: mujoco.MjData,
+    body1: str = "pouring",
+    body2: str = "receiving",
+    cutoff: float = 0.02,
+) -> float:
+    """Smallest signed distance between the geoms of two bodies, m (< 0: they overlap).
+
+    MuJoCo makes no contacts between bodies that cannot move dynamically (a mocap pouring
+    container and a receiving container fixed to the world), so collision checks between
+    containers use this instead. Geom pairs whose bounding spheres are further apart than
+    ``cutoff`` are skipped; the result is ``cutoff`` when nothing is closer.
+
+    Raises:
+        UnknownNameError: a body name is not in the model.
+    """
+    names = [model.body(b).name for b in range(model.nbody)]
+    ids = []
+    for n in (body1, body2):
+        if n not in names:
+            raise UnknownNameError("body", n, names)
+        ids.append(model.body(n).id)
+    geoms = [np.flatnonzero(model.geom_bodyid == b) for b in ids]
+    if len(geoms[0]) == 0 or len(geoms[1]) == 0:
+        return cutoff
+    c1, c2 = data.geom_xpos[geoms[0]], data.geom_xpos[geoms[1]]
+    gap = np.linalg.norm(c1[:, None] - c2[None], axis=-1)
+    gap -= model.geom_rbound[geoms[0]][:, None] + model.geom_rbound[geoms[1]][None]
+    best = cutoff
+    for i, j in zip(*np.nonzero(gap < cutoff), strict=True):
+        d = mujoco.mj_geomDistance(model, data, int(geoms[0][i]), int(geoms[1][j]), cutoff, None)
+        best = min(best, d)
+    return float(best)

@@ -198,3 +198,24 @@ def test_unknown_robot_lists_known_ones() -> None:
         load_robot("ur5")
     assert isinstance(info.value, UnknownNameError)
     assert "ur5" in str(info.value)
+
+
+@pytest.mark.parametrize(("robot", "prefix"), [("movo", "right_"), ("panda", "")])
+def test_velocity_commands_are_tracked_and_clipped(robot: str, prefix: str) -> None:
+    model = load_robot(robot)
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+    joints = [model.joint(f"{prefix}joint_{i}").id for i in range(1, 8)]
+    adr = model.jnt_qposadr[joints]
+    q0 = data.qpos[adr].copy()
+    act = model.actuator(f"{prefix}joint_2").id
+    data.ctrl[model.actuator(f"{prefix}joint_1").id] = 0.2  # rad/s, within the limits
+    data.ctrl[act] = -100.0  # far beyond the limit: clipped to the velocity limit
+    for _ in range(int(0.4 / model.opt.timestep)):  # Panda joint 2 stays inside its range
+        mujoco.mj_step(model, data)
+    vel = data.qvel[model.jnt_dofadr[joints]]
+    assert vel[0] == pytest.approx(0.2, rel=0.02)  # steady state: the joint moves as commanded
+    assert vel[1] == pytest.approx(model.actuator_ctrlrange[act, 0], rel=0.02)
+    dq = data.qpos[adr] - q0
+    assert dq[0] == pytest.approx(0.2 * 0.4, abs=0.03)  # lags the integrated target < 0.15 s
+    assert np.abs(dq[2:]).max() < 0.01

@@ -1,0 +1,150 @@
+"""Scene composition: pour scenes for every container and robot option, planning scenes."""
+
+from __future__ import annotations
+
+import itertools
+
+import mujoco
+import numpy as np
+import pytest
+
+from pourbench.containers import container_names, get_container
+from pourbench.errors import UnknownNameError
+from pourbench.scene import (
+    ObstacleGeom,
+    body_clearance,
+    build_planning_scene,
+    build_pour_scene,
+    set_obstacle_pose,
+)
+
+G = 9.81
+NAMES = container_names()
+POURING = [n for n in NAMES if get_container(n).role != "receiving"]
+GRASP = {"movo": "right_ee", "panda": "tcp"}
+
+
+def _site_pose(model: mujoco.MjModel, data: mujoco.MjData, name: str) -> np.ndarray:
+    h = np.eye(4)
+    h[:3, :3] = data.site_xmat[model.site(name).id].reshape(3, 3)
+    h[:3, 3] = data.site_xpos[model.site(name).id]
+    return h
+
+
+def _check_scene(pouring: str, receiving: str, robot: str | None) -> None:
+    scene = build_pour_scene(pouring, receiving, robot)
+    model, data = scene.model, scene.make_data()
+    recv = get_container(receiving)
+    # containers sit where they should
+    if robot is None:
+        assert scene.pouring_mocap and model.body_mocapid[model.body("pouring").id] >= 0
+        low = data.xpos[model.body("pouring").id][2]
+        top = data.site_xpos[model.site("receiving_rim").id][2]
+        assert low > top  # the pouring container starts above the receiving rim
+    else:
+        np.testing.assert_allclose(
+            _site_pose(model, data, "pouring_mount"),
+            _site_pose(model, data, GRASP[robot]),
+            atol=1e-9,
+        )
+    if robot == "movo":
+        np.testing.assert_allclose(
+            _site_pose(model, data, "receiving_mount"),
+            _site_pose(model, data, "left_ee"),
+            atol=1e-9,
+        )
+    # the scale weighs what hangs on it: the receiving container (plus the gripper on the Movo)
+    weight = recv.mass + (1.435 if robot == "movo" else 0.0)
+    assert np.linalg.norm(data.sensor(scene.scale_force).data) == pytest.approx(
+        weight * G, rel=1e-6
+    )
+    # 2 s at home: nothing moves, nothing touches
+    q0, x0 = data.qpos.copy(), data.xpos.copy()
+    contacts = 0
+    for _ in range(int(2.0 / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+        contacts = max(contacts, data.ncon)
+    assert contacts == 0
+    if model.nq:
+        assert np.abs(data.qpos - q0).max() < 1e-3
+    assert np.linalg.norm(data.xpos - x0, axis=1).max() < 1e-3
+
+
+@pytest.mark.parametrize("robot", [None, "movo", "panda"])
+@pytest.mark.parametrize("pouring", POURING)
+def test_pour_scene_every_pouring_container(pouring: str, robot: str | None) -> None:
+    _check_scene(pouring, "tray", robot)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot", [None, "movo", "panda"])
+def test_pour_scene_every_container_pair(robot: str | None) -> None:
+    for pouring, receiving in itertools.product(NAMES, NAMES):
+        _check_scene(pouring, receiving, robot)
+
+
+def test_pouring_container_clearance_to_receiving() -> None:
+    scene = build_pour_scene("cup_small", "tray")
+    model, data = scene.model, scene.make_data()
+    assert body_clearance(model, data, cutoff=0.05) > 0.04  # starts well clear
+    tray, cup = get_container("tray"), get_container("cup_small")
+    rim = data.site_xpos[model.site("receiving_rim").id]
+    # the cup's side wall right above the tray's wall (mid-surfaces aligned)
+    dx = tray.shape.points[-1, 0] - cup.shape.points[-1, 0]
+    set_obstacle_pose(model, data, "pouring", rim + np.array([dx, 0.0, 0.02]))
+    mujoco.mj_forward(model, data)
+    expected = 0.02 - tray.wall / 2  # the cup's outer bottom to the tray's rounded rim
+    assert body_clearance(model, data, cutoff=0.05) == pytest.approx(expected, abs=5e-4)
+    set_obstacle_pose(model, data, "pouring", rim + np.array([dx, 0.0, -0.01]))
+    mujoco.mj_forward(model, data)
+    assert body_clearance(model, data) < -1e-3  # walls interpenetrate
+    assert data.ncon == 0  # MuJoCo itself makes no contacts between two kinematic bodies
+
+
+def test_movo_weighs_liquid_with_the_left_wrist_sensor() -> None:
+    scene = build_pour_scene("training", "tray", "movo")
+    model, data = scene.model, scene.make_data()
+    data.xfrc_applied[model.body("receiving").id, 2] = -0.1 * G  # 100 g of liquid in the tray
+    for _ in range(500):  # 1 s to settle on the servos
+        mujoco.mj_step(model, data)
+    site = model.site("left_ft").id
+    world = data.site_xmat[site].reshape(3, 3) @ data.sensor("left_ft_force").data
+    # static equilibrium: the sensor carries gripper + tray + liquid; the force on the child
+    # points from the child (gripper side) towards the parent (wrist), i.e. up
+    np.testing.assert_allclose(world, (0.0, 0.0, (1.435 + 0.2 + 0.1) * G), atol=1e-3)
+
+
+def test_planning_scene_obstacles_move_and_collide() -> None:
+    model = build_planning_scene(
+        "movo",
+        [
+            ObstacleGeom("sphere", (0.05,), (2.0, 0.0, 1.0)),
+            ObstacleGeom("box", (0.1, 0.1, 0.1), (2, 1, 1)),
+        ],
+        table=True,
+    )
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+    mujoco.mj_forward(model, data)
+    assert data.ncon == 0
+    ee = data.site_xpos[model.site("right_ee").id].copy()
+    set_obstacle_pose(model, data, "obstacle_0", ee)
+    mujoco.mj_forward(model, data)
+    np.testing.assert_allclose(data.xpos[model.body("obstacle_0").id], ee)
+    hit = {model.geom(c.geom1).name for c in data.contact[: data.ncon]}
+    hit |= {model.geom(c.geom2).name for c in data.contact[: data.ncon]}
+    assert "obstacle_0" in hit
+    with pytest.raises(ValueError, match="cone"):
+        build_planning_scene("panda", [ObstacleGeom("cone", (0.1,), (0, 0, 0))])
+    with pytest.raises(ValueError, match="obstacle_0"):
+        set_obstacle_pose(model, data, "obstacle_9", (0, 0, 0))
+
+
+def test_bad_names_list_the_known_ones() -> None:
+    with pytest.raises(UnknownNameError, match=r"movo.*panda"):
+        build_pour_scene("training", "tray", "pr2")
+    with pytest.raises(ValueError, match="bottle_wine") as info:
+        build_pour_scene("kettle", "tray")
+    assert "kettle" in str(info.value)
+    with pytest.raises(ValueError, match="tray"):
+        build_pour_scene("training", "bucket", "panda")
