@@ -130,6 +130,13 @@ class RevolvedShell:
         dist = np.linalg.norm(q[..., None, :] - closest, axis=-1).min(axis=-1)
         return dist - self.wall / 2
 
+    def contains(self, points: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Whether local points lie in the cavity (up to ``margin`` above the rim)."""
+        p = np.asarray(points, dtype=float)
+        z = np.clip(p[..., 2], self.bottom_z, self.rim_height)
+        in_z = (p[..., 2] >= self.bottom_z - margin) & (p[..., 2] <= self.rim_height + margin)
+        return in_z & (np.hypot(p[..., 0], p[..., 1]) <= self.inner_radius(z) + 1e-9)
+
     def kernel_params(self) -> np.ndarray:
         """Flat float32 parameters for the Warp kernels: [wall, (ρ, z) × n]."""
         return np.concatenate(([self.wall], self.points.ravel())).astype(np.float32)
@@ -137,12 +144,16 @@ class RevolvedShell:
 
 @dataclass(frozen=True)
 class BoxShell:
-    """Open-topped box: inner half-extents (x, y), inner depth, wall thickness (all m)."""
+    """Box container: inner half-extents (x, y), inner depth, wall thickness (all m).
+
+    Open-topped (a tray) unless ``closed``, which adds a lid of the wall's thickness.
+    """
 
     half_x: float
     half_y: float
     depth: float
     wall: float
+    closed: bool = False
 
     def __post_init__(self) -> None:
         for name in ("half_x", "half_y", "depth", "wall"):
@@ -165,18 +176,34 @@ class BoxShell:
     def volume_below(self, z: float) -> float:
         return 4.0 * self.half_x * self.half_y * float(np.clip(z - self.wall, 0.0, self.depth))
 
+    def contains(self, points: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Whether local points lie in the cavity (up to ``margin`` above the rim)."""
+        p = np.asarray(points, dtype=float)
+        top = self.rim_height + (0.0 if self.closed else margin)
+        return (
+            (np.abs(p[..., 0]) <= self.half_x)
+            & (np.abs(p[..., 1]) <= self.half_y)
+            & (p[..., 2] >= self.bottom_z - margin)
+            & (p[..., 2] <= top)
+        )
+
     def sdf(self, points: np.ndarray) -> np.ndarray:
         """Signed distance to the wall material (outer box minus the cavity), m."""
         p = np.asarray(points, dtype=float)
-        hw = self.wall
-        outer_c = np.array([0.0, 0.0, (self.depth + hw) / 2])
-        outer_h = np.array([self.half_x + hw, self.half_y + hw, (self.depth + hw) / 2])
-        cav_c = np.array([0.0, 0.0, hw + self.depth])  # cavity extends above the rim
-        cav_h = np.array([self.half_x, self.half_y, self.depth])
+        hw, lid = self.wall, float(self.closed)
+        outer_half_z = 0.5 * self.depth + hw * (0.5 + 0.5 * lid)
+        outer_c = np.array([0.0, 0.0, outer_half_z])
+        outer_h = np.array([self.half_x + hw, self.half_y + hw, outer_half_z])
+        cav_half = self.depth * (1.0 - 0.5 * lid)  # an open cavity extends above the rim
+        cav_c = np.array([0.0, 0.0, hw + cav_half])
+        cav_h = np.array([self.half_x, self.half_y, cav_half])
         return np.maximum(_box_sdf(p - outer_c, outer_h), -_box_sdf(p - cav_c, cav_h))
 
     def kernel_params(self) -> np.ndarray:
-        return np.array([self.wall, self.half_x, self.half_y, self.depth], dtype=np.float32)
+        """Flat float32 parameters for the Warp kernels: [wall, hx, hy, depth, closed]."""
+        return np.array(
+            [self.wall, self.half_x, self.half_y, self.depth, float(self.closed)], np.float32
+        )
 
 
 ContainerShape = RevolvedShell | BoxShell

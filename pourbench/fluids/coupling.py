@@ -1,0 +1,201 @@
+"""Two-way coupling between a :class:`PBFSolver` and MuJoCo (one ``MjData`` per world).
+
+Each step: MuJoCo advances its bodies (using the liquid's wrench of the previous step in
+``xfrc_applied``), the colliders take the bodies' new poses, the fluid advances with swept
+collisions from the old poses to the new ones, and the liquid's reaction on every coupled
+body (summed in the collision kernels) is written to ``xfrc_applied`` for the next step. So
+a MuJoCo force sensor under a container reads the liquid's weight and the stream's impacts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from pourbench.errors import InvalidParameterError
+from pourbench.fluids.shapes import ContainerShape
+from pourbench.fluids.solver import PBFSolver
+
+_GEOM_KIND = {
+    mujoco.mjtGeom.mjGEOM_PLANE: "plane",
+    mujoco.mjtGeom.mjGEOM_SPHERE: "sphere",
+    mujoco.mjtGeom.mjGEOM_CAPSULE: "capsule",
+    mujoco.mjtGeom.mjGEOM_CYLINDER: "cylinder",
+    mujoco.mjtGeom.mjGEOM_BOX: "box",
+    mujoco.mjtGeom.mjGEOM_MESH: "mesh",
+}
+
+
+def quat_mul_wxyz(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of (w, x, y, z) quaternions."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+@dataclass
+class _Binding:
+    collider: int
+    world: int
+    body: int
+    local_pos: np.ndarray
+    local_quat: np.ndarray  # w, x, y, z
+
+
+class MujocoCoupling:
+    """Binds solver colliders to MuJoCo bodies, one ``MjData`` per solver world.
+
+    Args:
+        solver: the fluid solver; its ``config.dt`` must equal ``model.opt.timestep``.
+        model: the MuJoCo model shared by every world.
+        datas: one ``MjData`` per solver world.
+    """
+
+    def __init__(self, solver: PBFSolver, model: mujoco.MjModel, datas: Sequence[mujoco.MjData]):
+        if len(datas) != solver.num_worlds:
+            raise InvalidParameterError(
+                f"need one MjData per world: {solver.num_worlds} worlds, {len(datas)} datas"
+            )
+        if abs(model.opt.timestep - solver.config.dt) > 1e-12:
+            raise InvalidParameterError(
+                f"model.opt.timestep={model.opt.timestep} must equal the fluid dt="
+                f"{solver.config.dt}"
+            )
+        self.solver, self.model, self.datas = solver, model, list(datas)
+        self.bindings: list[_Binding] = []
+        self.slots: dict[tuple[int, int], int] = {}
+        for d in self.datas:
+            mujoco.mj_kinematics(model, d)
+
+    def _body_id(self, body: int | str) -> int:
+        if isinstance(body, str):
+            bid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, body)
+            if bid < 0:
+                names = [self.model.body(i).name for i in range(self.model.nbody)]
+                raise InvalidParameterError(f"unknown body {body!r}; bodies: {names}")
+            return bid
+        return int(body)
+
+    def _slot(self, world: int, body: int) -> int:
+        if body == 0:  # the world body never moves and takes no wrench
+            return -1
+        key = (world, body)
+        if key not in self.slots:
+            self.slots[key] = self.solver.new_body_slot()
+        return self.slots[key]
+
+    def _worlds(self, world: int | None) -> range:
+        return range(self.solver.num_worlds) if world is None else range(world, world + 1)
+
+    def add_geoms(self, geoms: Iterable[int | str] | None = None, world: int | None = None) -> None:
+        """Turn MuJoCo geoms (all collidable ones by default) into colliders.
+
+        Supported: plane, sphere, capsule, cylinder, box, mesh. Other types raise.
+        """
+        m = self.model
+        if geoms is None:
+            ids = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]]
+        else:
+            ids = [
+                mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) if isinstance(g, str) else g
+                for g in geoms
+            ]
+            if any(g < 0 for g in ids):
+                raise InvalidParameterError(f"unknown geom in {list(geoms)}")
+        for g in ids:
+            gtype = int(m.geom_type[g])
+            if gtype not in _GEOM_KIND:
+                raise InvalidParameterError(
+                    f"geom {m.geom(g).name or g}: type {mujoco.mjtGeom(gtype).name} has no "
+                    f"fluid collider; supported: {sorted(_GEOM_KIND.values())}"
+                )
+            kind = _GEOM_KIND[gtype]
+            size = m.geom_size[g]
+            params = {
+                "plane": [0.0],
+                "sphere": [size[0]],
+                "capsule": [size[0], size[1]],
+                "cylinder": [size[0], size[1]],
+                "box": list(size),
+                "mesh": [0.0],
+            }[kind]
+            mesh = None
+            if kind == "mesh":
+                mid = m.geom_dataid[g]
+                va, vn = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
+                fa, fn = m.mesh_faceadr[mid], m.mesh_facenum[mid]
+                mesh = (m.mesh_vert[va : va + vn], m.mesh_face[fa : fa + fn])
+            body = int(m.geom_bodyid[g])
+            for w in self._worlds(world):
+                c = self.solver.add_collider(w, kind, params, body=self._slot(w, body), mesh=mesh)
+                self.bindings.append(
+                    _Binding(c, w, body, m.geom_pos[g].copy(), m.geom_quat[g].copy())
+                )
+        self.sync()
+
+    def add_container(
+        self,
+        body: int | str,
+        shape: ContainerShape,
+        local_pos: Sequence[float] = (0.0, 0.0, 0.0),
+        local_quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0),
+        world: int | None = None,
+    ) -> list[int]:
+        """Attach a container shell to ``body`` (frame offset in (w, x, y, z) quaternion).
+
+        Returns:
+            The collider index in each world, in world order.
+        """
+        bid = self._body_id(body)
+        out = []
+        for w in self._worlds(world):
+            c = self.solver.add_container(w, shape, body=self._slot(w, bid))
+            self.bindings.append(
+                _Binding(c, w, bid, np.asarray(local_pos, float), np.asarray(local_quat, float))
+            )
+            out.append(c)
+        self.sync()
+        return out
+
+    def sync(self) -> None:
+        """Copy every bound body's current pose (from ``MjData``) to its collider."""
+        if not self.bindings:
+            return
+        idx, poses, coms = [], [], []
+        for b in self.bindings:
+            d = self.datas[b.world]
+            xq = d.xquat[b.body]
+            rot = d.xmat[b.body].reshape(3, 3)
+            q = quat_mul_wxyz(xq, b.local_quat)
+            pos = d.xpos[b.body] + rot @ b.local_pos
+            idx.append(b.collider)
+            poses.append([*pos, q[1], q[2], q[3], q[0]])
+            coms.append(d.xipos[b.body])
+        self.solver.set_collider_poses(idx, np.array(poses), np.array(coms))
+
+    def apply(self) -> None:
+        """Write the liquid's last reaction wrench on each coupled body to ``xfrc_applied``."""
+        force, torque = self.solver.body_wrenches()
+        for (w, body), slot in self.slots.items():
+            self.datas[w].xfrc_applied[body, :3] = force[slot]
+            self.datas[w].xfrc_applied[body, 3:] = torque[slot]
+
+    def step(self, n: int = 1) -> None:
+        """Advance MuJoCo and the liquid together by ``n`` steps."""
+        for _ in range(int(n)):
+            for d in self.datas:
+                mujoco.mj_step(self.model, d)
+                mujoco.mj_kinematics(self.model, d)
+            self.sync()
+            self.solver.step()
+            self.apply()

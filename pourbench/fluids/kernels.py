@@ -1,0 +1,623 @@
+"""Warp kernels of the position-based-fluids solver (Macklin & Müller 2013), hand-written.
+
+No library ships PBF kernels with FleX's parameter semantics and per-world isolation, so they
+live here. Every kernel runs unchanged on ``device="cpu"`` and ``device="cuda"``.
+
+Conventions: ``h`` is the smoothing radius (2 × particle spacing), ``w0`` the kernel sum of a
+particle in a full cubic lattice (the rest "density" in kernel units), so the density
+constraint is ``C_i = Σ_j W_ij / w0 − 1``. Particles of different worlds never interact:
+the neighbour search runs on positions offset per world and rejects other worlds explicitly.
+Per-world liquid parameters are arrays indexed by ``world[i]``.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+# Collider kinds (one SDF routine each).
+PLANE = wp.constant(0)
+BOX = wp.constant(1)
+SPHERE = wp.constant(2)
+CAPSULE = wp.constant(3)
+CYLINDER = wp.constant(4)
+MESH = wp.constant(5)
+REVOLVED = wp.constant(6)
+BOX_SHELL = wp.constant(7)
+
+PI = wp.constant(3.14159265358979)
+
+
+@wp.func
+def poly6(r2: float, h: float) -> float:
+    """Poly6 kernel without its constant 315/(64π h⁹) (it cancels in W / w0)."""
+    h2 = h * h
+    if r2 >= h2:
+        return 0.0
+    d = h2 - r2
+    return d * d * d
+
+
+@wp.func
+def spiky(dist: float, h: float) -> float:
+    """Spiky kernel without its constant 15/(π h⁶): the density kernel whose exact gradient
+    is ``spiky_grad``, so each Jacobi step follows the true constraint gradient."""
+    if dist >= h:
+        return 0.0
+    d = h - dist
+    return d * d * d
+
+
+@wp.func
+def spiky_grad(r: wp.vec3, dist: float, h: float, coef: float) -> wp.vec3:
+    """Spiky-kernel gradient; ``coef`` = −45/(π h⁶) / w0 (constant scaled by the rest sum)."""
+    if dist >= h or dist < 1.0e-9:
+        return wp.vec3(0.0)
+    d = h - dist
+    return r * (coef * d * d / dist)
+
+
+@wp.func
+def cohesion_spline(r: float, h: float) -> float:
+    """Akinci et al. (2013) cohesion spline, normalised to a peak of 1 at r = h/2."""
+    if r >= h or r <= 0.0:
+        return 0.0
+    h3 = h * h * h
+    a = (h - r) * (h - r) * (h - r) * r * r * r
+    if 2.0 * r > h:
+        return 64.0 * a / (h3 * h3)
+    return 64.0 * (2.0 * a - h3 * h3 / 64.0) / (h3 * h3)
+
+
+# --------------------------------------------------------------------------- step 1: predict
+
+
+@wp.kernel
+def predict(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    world: wp.array(dtype=wp.int32),
+    damping: wp.array(dtype=float),
+    gravity: wp.vec3,
+    dt: float,
+    world_offset: float,
+    x_prev: wp.array(dtype=wp.vec3),
+    p: wp.array(dtype=wp.vec3),
+    p_grid: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid()
+    w = world[i]
+    vi = (v[i] + gravity * dt) * (1.0 / (1.0 + damping[w] * dt))
+    v[i] = vi
+    x_prev[i] = x[i]
+    pi = x[i] + vi * dt
+    p[i] = pi
+    # worlds sit on a 16 × 16 × n layout, ``world_offset`` apart, in the hash grid only
+    ox = float(w % 16)
+    oy = float((w / 16) % 16)
+    oz = float(w / 256)
+    p_grid[i] = pi + wp.vec3(ox, oy, oz) * world_offset
+
+
+# ------------------------------------------------------------------ step 2: neighbour lists
+
+
+@wp.kernel
+def build_neighbours(
+    grid: wp.uint64,
+    p_grid: wp.array(dtype=wp.vec3),
+    world: wp.array(dtype=wp.int32),
+    h: float,
+    max_nb: int,
+    nbr: wp.array2d(dtype=wp.int32),
+    nbr_count: wp.array(dtype=wp.int32),
+):
+    i = wp.tid()
+    pi = p_grid[i]
+    wi = world[i]
+    h2 = h * h
+    count = 0
+    j = 0
+    query = wp.hash_grid_query(grid, pi, h)
+    while wp.hash_grid_query_next(query, j):
+        if j != i and world[j] == wi and count < max_nb:
+            r = pi - p_grid[j]
+            if wp.dot(r, r) < h2:
+                nbr[i, count] = j
+                count += 1
+    nbr_count[i] = count
+
+
+# ------------------------------------------------------------- step 3: density constraints
+
+
+@wp.kernel
+def compute_lambda(
+    p: wp.array(dtype=wp.vec3),
+    nbr: wp.array2d(dtype=wp.int32),
+    nbr_count: wp.array(dtype=wp.int32),
+    h: float,
+    w0: float,
+    grad_c: float,
+    eps: float,
+    lam: wp.array(dtype=float),
+    density: wp.array(dtype=float),
+):
+    i = wp.tid()
+    pi = p[i]
+    rho = spiky(0.0, h)
+    grad_i = wp.vec3(0.0)
+    sum_grad2 = 0.0
+    for k in range(nbr_count[i]):
+        j = nbr[i, k]
+        r = pi - p[j]
+        dist = wp.length(r)
+        rho += spiky(dist, h)
+        g = spiky_grad(r, dist, h, grad_c)
+        grad_i += g
+        sum_grad2 += wp.dot(g, g)
+    sum_grad2 += wp.dot(grad_i, grad_i)
+    rho = rho / w0
+    density[i] = rho
+    c = wp.max(rho - 1.0, 0.0)  # unilateral: a free surface is not pulled together
+    lam[i] = -c / (sum_grad2 + eps)
+
+
+@wp.kernel
+def compute_delta(
+    p: wp.array(dtype=wp.vec3),
+    nbr: wp.array2d(dtype=wp.int32),
+    nbr_count: wp.array(dtype=wp.int32),
+    lam: wp.array(dtype=float),
+    h: float,
+    grad_c: float,
+    scorr_k: float,
+    scorr_n: float,
+    scorr_wdq: float,
+    sor: float,
+    delta: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid()
+    pi = p[i]
+    li = lam[i]
+    dp = wp.vec3(0.0)
+    for k in range(nbr_count[i]):
+        j = nbr[i, k]
+        r = pi - p[j]
+        d2 = wp.dot(r, r)
+        ratio = poly6(d2, h) / scorr_wdq
+        s_corr = 0.0
+        lsum = li + lam[j]
+        if scorr_n == 4.0:
+            s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
+        else:
+            s_corr = -scorr_k * wp.pow(ratio, scorr_n)
+        dp += (lsum + s_corr) * spiky_grad(r, wp.sqrt(d2), h, grad_c)
+    delta[i] = dp * sor
+
+
+@wp.kernel
+def apply_delta(p: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    p[i] = p[i] + delta[i]
+
+
+# ------------------------------------------------------------------------ collider SDFs
+
+
+@wp.func
+def sd_box(q: wp.vec3, he: wp.vec3) -> wp.vec4:
+    """Signed distance and outward normal of a box of half-extents ``he``."""
+    d = wp.vec3(wp.abs(q[0]) - he[0], wp.abs(q[1]) - he[1], wp.abs(q[2]) - he[2])
+    outside = wp.vec3(wp.max(d[0], 0.0), wp.max(d[1], 0.0), wp.max(d[2], 0.0))
+    lo = wp.length(outside)
+    if lo > 0.0:
+        n = wp.vec3(
+            wp.sign(q[0]) * outside[0], wp.sign(q[1]) * outside[1], wp.sign(q[2]) * outside[2]
+        )
+        n = n / lo
+        return wp.vec4(lo, n[0], n[1], n[2])
+    # inside: nearest face
+    if d[0] >= d[1] and d[0] >= d[2]:
+        return wp.vec4(d[0], wp.sign(q[0]), 0.0, 0.0)
+    if d[1] >= d[2]:
+        return wp.vec4(d[1], 0.0, wp.sign(q[1]), 0.0)
+    return wp.vec4(d[2], 0.0, 0.0, wp.sign(q[2]))
+
+
+@wp.func
+def sd_segment(q: wp.vec3, a: wp.vec3, b: wp.vec3, radius: float) -> wp.vec4:
+    ab = b - a
+    t = wp.clamp(wp.dot(q - a, ab) / wp.max(wp.dot(ab, ab), 1.0e-12), 0.0, 1.0)
+    r = q - (a + ab * t)
+    d = wp.length(r)
+    n = wp.vec3(0.0, 0.0, 1.0)
+    if d > 1.0e-9:
+        n = r / d
+    return wp.vec4(d - radius, n[0], n[1], n[2])
+
+
+@wp.func
+def sd_revolved(q: wp.vec3, params: wp.array(dtype=float), start: int, count: int) -> wp.vec4:
+    """Thin wall of thickness params[start] around a revolved (ρ, z) polyline."""
+    wall = params[start]
+    rho = wp.sqrt(q[0] * q[0] + q[1] * q[1])
+    best = 1.0e10
+    best_dr = 0.0
+    best_dz = 1.0
+    npts = (count - 1) / 2
+    for k in range(npts - 1):
+        ar = params[start + 1 + 2 * k]
+        az = params[start + 2 + 2 * k]
+        br = params[start + 3 + 2 * k]
+        bz = params[start + 4 + 2 * k]
+        er = br - ar
+        ez = bz - az
+        t = wp.clamp(((rho - ar) * er + (q[2] - az) * ez) / (er * er + ez * ez), 0.0, 1.0)
+        dr = rho - (ar + t * er)
+        dz = q[2] - (az + t * ez)
+        dd = dr * dr + dz * dz
+        if dd < best:
+            best = dd
+            best_dr = dr
+            best_dz = dz
+    d = wp.sqrt(best)
+    nr = 0.0
+    nz = 1.0
+    if d > 1.0e-9:
+        nr = best_dr / d
+        nz = best_dz / d
+    ux = 1.0
+    uy = 0.0
+    if rho > 1.0e-9:
+        ux = q[0] / rho
+        uy = q[1] / rho
+    return wp.vec4(d - 0.5 * wall, nr * ux, nr * uy, nz)
+
+
+@wp.func
+def sd_box_shell(q: wp.vec3, params: wp.array(dtype=float), start: int) -> wp.vec4:
+    """Open (params[start+4] = 0) or closed box with walls of params[start]."""
+    wall = params[start]
+    hx = params[start + 1]
+    hy = params[start + 2]
+    depth = params[start + 3]
+    closed = params[start + 4]
+    outer = sd_box(
+        q - wp.vec3(0.0, 0.0, 0.5 * depth + wall * (0.5 + 0.5 * closed)),
+        wp.vec3(hx + wall, hy + wall, 0.5 * depth + wall * (0.5 + 0.5 * closed)),
+    )
+    cav_half = depth * (1.0 - 0.5 * closed)
+    cav = sd_box(q - wp.vec3(0.0, 0.0, wall + cav_half), wp.vec3(hx, hy, cav_half))
+    if outer[0] >= -cav[0]:
+        return outer
+    return wp.vec4(-cav[0], -cav[1], -cav[2], -cav[3])
+
+
+@wp.func
+def collider_sdf(
+    kind: int,
+    params: wp.array(dtype=float),
+    start: int,
+    count: int,
+    mesh: wp.uint64,
+    q: wp.vec3,
+) -> wp.vec4:
+    """(signed distance, outward normal) of collider ``kind`` at local point ``q``."""
+    if kind == PLANE:
+        return wp.vec4(q[2], 0.0, 0.0, 1.0)
+    if kind == BOX:
+        return sd_box(q, wp.vec3(params[start], params[start + 1], params[start + 2]))
+    if kind == SPHERE:
+        d = wp.length(q)
+        n = wp.vec3(0.0, 0.0, 1.0)
+        if d > 1.0e-9:
+            n = q / d
+        return wp.vec4(d - params[start], n[0], n[1], n[2])
+    if kind == CAPSULE:
+        hl = params[start + 1]
+        return sd_segment(q, wp.vec3(0.0, 0.0, -hl), wp.vec3(0.0, 0.0, hl), params[start])
+    if kind == CYLINDER:
+        rad = params[start]
+        hl = params[start + 1]
+        rho = wp.sqrt(q[0] * q[0] + q[1] * q[1])
+        ux = 1.0
+        uy = 0.0
+        if rho > 1.0e-9:
+            ux = q[0] / rho
+            uy = q[1] / rho
+        dr = rho - rad
+        dz = wp.abs(q[2]) - hl
+        if dr > 0.0 and dz > 0.0:
+            l = wp.sqrt(dr * dr + dz * dz)
+            return wp.vec4(l, ux * dr / l, uy * dr / l, wp.sign(q[2]) * dz / l)
+        if dr > dz:
+            return wp.vec4(dr, ux, uy, 0.0)
+        return wp.vec4(dz, 0.0, 0.0, wp.sign(q[2]))
+    if kind == MESH:
+        query = wp.mesh_query_point_sign_normal(mesh, q, 1.0e6)
+        if query.result:
+            cp = wp.mesh_eval_position(mesh, query.face, query.u, query.v)
+            r = q - cp
+            d = wp.length(r)
+            n = wp.mesh_eval_face_normal(mesh, query.face)
+            if d > 1.0e-9:
+                n = r * (query.sign / d)
+            return wp.vec4(d * query.sign, n[0], n[1], n[2])
+        return wp.vec4(1.0e10, 0.0, 0.0, 1.0)
+    if kind == REVOLVED:
+        return sd_revolved(q, params, start, count)
+    return sd_box_shell(q, params, start)
+
+
+# --------------------------------------------------------------------------- collisions
+
+
+@wp.kernel
+def project_colliders(
+    p: wp.array(dtype=wp.vec3),
+    world: wp.array(dtype=wp.int32),
+    world_col_start: wp.array(dtype=wp.int32),
+    world_col_end: wp.array(dtype=wp.int32),
+    col_kind: wp.array(dtype=wp.int32),
+    col_start: wp.array(dtype=wp.int32),
+    col_count: wp.array(dtype=wp.int32),
+    col_mesh: wp.array(dtype=wp.uint64),
+    col_params: wp.array(dtype=float),
+    col_pose: wp.array(dtype=wp.transform),
+    col_body: wp.array(dtype=wp.int32),
+    col_com: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    radius: float,
+    dt: float,
+    body_force: wp.array(dtype=wp.vec3),
+    body_torque: wp.array(dtype=wp.vec3),
+):
+    """In-iteration projection out of colliders (no friction); reactions summed per body."""
+    i = wp.tid()
+    w = world[i]
+    pi = p[i]
+    for c in range(world_col_start[w], world_col_end[w]):
+        tf = col_pose[c]
+        q = wp.transform_point(wp.transform_inverse(tf), pi)
+        s = collider_sdf(col_kind[c], col_params, col_start[c], col_count[c], col_mesh[c], q)
+        if s[0] < radius:
+            n = wp.vec3(s[1], s[2], s[3])
+            new_p = wp.transform_point(tf, q + n * (radius - s[0]))
+            body = col_body[c]
+            if body >= 0:
+                f = (new_p - pi) * (-mass[w] / (dt * dt))
+                wp.atomic_add(body_force, body, f)
+                wp.atomic_add(body_torque, body, wp.cross(new_p - col_com[c], f))
+            pi = new_p
+    p[i] = pi
+
+
+@wp.kernel
+def collide(
+    p: wp.array(dtype=wp.vec3),
+    x_prev: wp.array(dtype=wp.vec3),
+    world: wp.array(dtype=wp.int32),
+    world_col_start: wp.array(dtype=wp.int32),
+    world_col_end: wp.array(dtype=wp.int32),
+    col_kind: wp.array(dtype=wp.int32),
+    col_start: wp.array(dtype=wp.int32),
+    col_count: wp.array(dtype=wp.int32),
+    col_mesh: wp.array(dtype=wp.uint64),
+    col_params: wp.array(dtype=float),
+    col_pose_prev: wp.array(dtype=wp.transform),
+    col_pose: wp.array(dtype=wp.transform),
+    col_body: wp.array(dtype=wp.int32),
+    col_com: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    static_friction: wp.array(dtype=float),
+    dynamic_friction: wp.array(dtype=float),
+    adhesion: wp.array(dtype=float),
+    radius: float,
+    adhesion_range: float,
+    adhesion_gain: float,
+    dt: float,
+    contacts: wp.array(dtype=wp.int32),
+    body_force: wp.array(dtype=wp.vec3),
+    body_torque: wp.array(dtype=wp.vec3),
+):
+    """Swept collision against every collider of the particle's world, with friction.
+
+    The particle's motion is followed in each collider's own frame, from its start-of-step
+    position (collider at its start-of-step pose) to its predicted position (collider at its
+    end pose), by sphere tracing; the first touch stops the normal motion. So a thin wall is
+    never crossed, whatever the speeds. Position corrections, converted to forces
+    (m Δx / dt²), are summed per body as the liquid's reaction on it.
+    """
+    i = wp.tid()
+    w = world[i]
+    pi = p[i]
+    m = mass[w]
+    n_contacts = 0
+    for c in range(world_col_start[w], world_col_end[w]):
+        kind = col_kind[c]
+        tf = col_pose[c]
+        tf_inv = wp.transform_inverse(tf)
+        a = wp.transform_point(wp.transform_inverse(col_pose_prev[c]), x_prev[i])
+        b = wp.transform_point(tf_inv, pi)
+        sa = collider_sdf(kind, col_params, col_start[c], col_count[c], col_mesh[c], a)
+        na = wp.vec3(sa[1], sa[2], sa[3])
+        seg = b - a
+        seg_len = wp.length(seg)
+        q = b
+        hit = 0
+        if sa[0] > -radius and seg_len > 1.0e-9 and wp.dot(seg, na) < 0.0:
+            # sphere-trace from a toward b; stop at the first point within `radius`
+            t = 0.0
+            for _it in range(24):
+                pt = a + seg * t
+                s = collider_sdf(kind, col_params, col_start[c], col_count[c], col_mesh[c], pt)
+                gap = s[0] - radius
+                if gap <= 1.0e-5:
+                    hit = 1
+                    q = pt
+                    na = wp.vec3(s[1], s[2], s[3])
+                    break
+                t = t + gap / seg_len
+                if t >= 1.0:
+                    break
+        if hit == 1:
+            rest = b - q  # keep only the sliding part of the remaining motion
+            q = q + rest - na * wp.min(wp.dot(rest, na), 0.0)
+        s = collider_sdf(kind, col_params, col_start[c], col_count[c], col_mesh[c], q)
+        if s[0] < radius + adhesion_range:
+            n = wp.vec3(s[1], s[2], s[3])
+            pen = radius - s[0]
+            if pen > 0.0:
+                q = q + n * pen
+                n_contacts += 1
+            # friction on the motion relative to the collider (Macklin et al. 2014, Eq. 24)
+            dx = q - a
+            dt_tan = dx - n * wp.dot(dx, n)
+            lt = wp.length(dt_tan)
+            grip = wp.max(pen, 0.0) + adhesion[w] * adhesion_range
+            if lt > 0.0:
+                if lt < static_friction[w] * grip:
+                    q = q - dt_tan
+                else:
+                    q = q - dt_tan * wp.min(dynamic_friction[w] * grip / lt, 1.0)
+            # adhesion: pull a particle in the contact band back toward the surface
+            if pen <= 0.0 and adhesion[w] > 0.0:
+                gap = -pen
+                q = q - n * gap * wp.min(adhesion[w] * adhesion_gain, 1.0)
+        new_p = wp.transform_point(tf, q)
+        corr = new_p - pi
+        pi = new_p
+        body = col_body[c]
+        if body >= 0 and wp.length_sq(corr) > 0.0:
+            f = corr * (-m / (dt * dt))
+            wp.atomic_add(body_force, body, f)
+            wp.atomic_add(body_torque, body, wp.cross(pi - col_com[c], f))
+    p[i] = pi
+    contacts[i] = n_contacts
+
+
+# ----------------------------------------------------- step 4: velocity and its filters
+
+
+@wp.kernel
+def update_velocity(
+    p: wp.array(dtype=wp.vec3),
+    x_prev: wp.array(dtype=wp.vec3),
+    contacts: wp.array(dtype=wp.int32),
+    world: wp.array(dtype=wp.int32),
+    dissipation: wp.array(dtype=float),
+    dt: float,
+    v: wp.array(dtype=wp.vec3),
+    x: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid()
+    vi = (p[i] - x_prev[i]) / dt
+    vi = vi / (1.0 + dissipation[world[i]] * float(contacts[i]) * dt)
+    v[i] = vi
+    x[i] = p[i]
+
+
+@wp.kernel
+def vorticity_and_normals(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    nbr: wp.array2d(dtype=wp.int32),
+    nbr_count: wp.array(dtype=wp.int32),
+    h: float,
+    grad_c: float,
+    omega: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+):
+    """Curl of velocity ω_i and colour-field normal n_i = h Σ ∇W / w0 (Akinci 2013)."""
+    i = wp.tid()
+    xi = x[i]
+    vi = v[i]
+    om = wp.vec3(0.0)
+    nn = wp.vec3(0.0)
+    for k in range(nbr_count[i]):
+        j = nbr[i, k]
+        r = xi - x[j]
+        g = spiky_grad(r, wp.length(r), h, grad_c)
+        om += wp.cross(v[j] - vi, g)
+        nn += g
+    omega[i] = om
+    normal[i] = nn * h
+
+
+@wp.kernel
+def velocity_filters(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    omega: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    nbr: wp.array2d(dtype=wp.int32),
+    nbr_count: wp.array(dtype=wp.int32),
+    world: wp.array(dtype=wp.int32),
+    viscosity: wp.array(dtype=float),
+    vorticity: wp.array(dtype=float),
+    cohesion: wp.array(dtype=float),
+    surface_tension: wp.array(dtype=float),
+    particle_friction: wp.array(dtype=float),
+    h: float,
+    grad_c: float,
+    spacing: float,
+    dt: float,
+    visc_rate: float,
+    coh_accel: float,
+    st_accel: float,
+    coh_norm: float,
+    curv_norm: float,
+    v_out: wp.array(dtype=wp.vec3),
+):
+    """XSPH viscosity, vorticity confinement, cohesion, surface tension, particle friction.
+
+    FleX's coefficients are dimensionless; pourbench maps them onto rates as documented in
+    :mod:`pourbench.fluids.solver` (``VISCOSITY_RATE`` etc.), identical for every world.
+    """
+    i = wp.tid()
+    w = world[i]
+    xi = x[i]
+    vi = v[i]
+    wsum = 0.0
+    vavg = wp.vec3(0.0)
+    eta = wp.vec3(0.0)
+    coh = wp.vec3(0.0)
+    curv = wp.vec3(0.0)
+    fric = wp.vec3(0.0)
+    for k in range(nbr_count[i]):
+        j = nbr[i, k]
+        r = xi - x[j]
+        d = wp.length(r)
+        wij = poly6(d * d, h)
+        wsum += wij
+        vavg += v[j] * wij
+        eta += spiky_grad(r, d, h, grad_c) * wp.length(omega[j])
+        if d > 1.0e-9:
+            coh -= (r / d) * cohesion_spline(d, h)
+            if d < spacing:
+                dv = v[j] - vi
+                dv_t = dv - (r / d) * wp.dot(dv, r / d)
+                fric += dv_t * (1.0 - d / spacing)
+        curv -= normal[i] - normal[j]
+    dv = wp.vec3(0.0)
+    if wsum > 0.0:
+        # XSPH: relax toward the kernel-weighted neighbour mean by a = ν / (1 + ν) per step
+        # (FleX's coefficient; the saturating form keeps ν ≫ 1 stable)
+        kv = visc_rate * viscosity[w]
+        dv += (vavg / wsum - vi) * (kv / (1.0 + kv))
+    eta_len = wp.length(eta)
+    if eta_len > 1.0e-9 and vorticity[w] > 0.0:
+        dv += wp.cross(eta / eta_len, omega[i]) * (vorticity[w] * dt)
+    # cohesion and curvature sums are normalised by their full-lattice magnitudes (rest_norm)
+    dv += coh * (cohesion[w] * coh_accel * dt / coh_norm)
+    dv += curv * (surface_tension[w] * st_accel * dt / curv_norm)
+    dv += fric * wp.min(particle_friction[w] * 0.1, 1.0)
+    v_out[i] = vi + dv
+
+
+@wp.kernel
+def swap_velocity(src: wp.array(dtype=wp.vec3), dst: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    dst[i] = src[i]
