@@ -36,6 +36,23 @@ def _cmd_liquids(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    from pourbench.scene import build_pour_scene
+
+    robot = None if args.robot == "none" else args.robot
+    scene = build_pour_scene(args.pouring, args.receiving, robot)
+    data = scene.make_data()
+    if args.viewer:
+        import mujoco.viewer
+
+        mujoco.viewer.launch(scene.model, data)
+        return 0
+    from pourbench.view import record
+
+    print(f"wrote {record(scene.model, data, args.out)}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pourbench", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -50,6 +67,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     liquids = sub.add_parser("liquids", help="list the shipped liquid profiles")
     liquids.set_defaults(func=_cmd_liquids)
+
+    view = sub.add_parser("view", help="record a composed scene to a rerun .rrd (or open it)")
+    view.add_argument("what", choices=("scene",))
+    view.add_argument("--robot", default="movo", help="movo, panda or none (mocap container)")
+    view.add_argument("--pouring", default="training", help="pouring container name")
+    view.add_argument("--receiving", default="tray", help="receiving container name")
+    view.add_argument("--out", default="scene.rrd", help="rerun recording to write")
+    view.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer instead")
+    view.set_defaults(func=_cmd_view)
     return parser
 
 

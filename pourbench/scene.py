@@ -50,7 +50,9 @@ def load_robot(name: str) -> mujoco.MjModel:
 # ----------------------------------------------------------------------------------- pour scenes
 
 TABLE_HEIGHT = 0.75
-"""Height of the table top, m."""
+"""Height of the table top, m (mocap and Panda scenes)."""
+MOVO_TABLE_HEIGHT = 0.6
+"""Height of the table in front of the Movo, m: below anything its grippers hold at home."""
 
 STATIC_CONTYPE = 1
 """Contact bit of static geoms (floor, table, obstacles): robots and containers touch them."""
@@ -133,7 +135,12 @@ def _grasp_in_body(
     return _pos_quat(site_in_body @ np.linalg.inv(mount))
 
 
-def _add_environment(spec: mujoco.MjSpec, table_center: tuple[float, float], size: tuple) -> None:
+def _add_environment(
+    spec: mujoco.MjSpec,
+    table_center: tuple[float, float],
+    size: tuple[float, float],
+    height: float = TABLE_HEIGHT,
+) -> None:
     spec.option.timestep = 0.002
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     world = spec.worldbody
@@ -150,7 +157,7 @@ def _add_environment(spec: mujoco.MjSpec, table_center: tuple[float, float], siz
     table.add_geom(
         name="table_top",
         type=mujoco.mjtGeom.mjGEOM_BOX,
-        pos=[0.0, 0.0, TABLE_HEIGHT - 0.02],
+        pos=[0.0, 0.0, height - 0.02],
         size=[size[0], size[1], 0.02],
         rgba=[0.6, 0.45, 0.3, 1.0],
         contype=STATIC_CONTYPE,
@@ -160,8 +167,8 @@ def _add_environment(spec: mujoco.MjSpec, table_center: tuple[float, float], siz
         for sy in (-1, 1):
             table.add_geom(
                 type=mujoco.mjtGeom.mjGEOM_BOX,
-                pos=[sx * (size[0] - 0.04), sy * (size[1] - 0.04), (TABLE_HEIGHT - 0.04) / 2],
-                size=[0.025, 0.025, (TABLE_HEIGHT - 0.04) / 2],
+                pos=[sx * (size[0] - 0.04), sy * (size[1] - 0.04), (height - 0.04) / 2],
+                size=[0.025, 0.025, (height - 0.04) / 2],
                 rgba=[0.45, 0.33, 0.22, 1.0],
                 contype=STATIC_CONTYPE,
                 conaffinity=0,
@@ -184,6 +191,26 @@ def _add_scale(spec: mujoco.MjSpec, body: mujoco.MjsBody) -> tuple[str, str]:
         objname="scale",
     )
     return force.name, torque.name
+
+
+def _robot_at_table(robot: str) -> mujoco.MjSpec:
+    """Robot spec plus floor and table: the Movo at a low table, the Panda on a pedestal."""
+    spec = robot_spec(robot)
+    if robot == "movo":
+        _add_environment(spec, (0.78, 0.0), (0.3, 0.5), MOVO_TABLE_HEIGHT)
+        return spec
+    spec.body("link_0").pos = [0.0, 0.0, _PANDA_PEDESTAL]
+    spec.worldbody.add_geom(
+        name="pedestal",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        pos=[0.0, 0.0, _PANDA_PEDESTAL / 2],
+        size=[0.12, 0.12, _PANDA_PEDESTAL / 2],
+        rgba=[0.3, 0.3, 0.32, 1.0],
+        contype=STATIC_CONTYPE,
+        conaffinity=0,
+    )
+    _add_environment(spec, (0.65, 0.0), (0.3, 0.5))
+    return spec
 
 
 def build_pour_scene(
@@ -239,35 +266,24 @@ def build_pour_scene(
         )
         return PourScene(spec, spec.compile(), None, pour, recv, *scale, True)
 
-    spec = robot_spec(robot)
+    spec = _robot_at_table(robot)
     spec.modelname = f"{robot}_pour_{pouring}_{receiving}"
-    bare = spec.compile()  # robot alone at qpos0: grasp offsets are relative to gripper bodies
+    bare = robot_spec(robot).compile()  # grasp offsets are relative to gripper bodies
     if robot == "movo":
-        _add_environment(spec, (0.78, 0.0), (0.3, 0.5))
         held = (
             ("pouring", pour, *_GRIPPER["movo"]),
             ("receiving", recv, "left_gripper", "left_ee"),
         )
         scale = ("left_ft_force", "left_ft_torque")
     else:
-        base = spec.body("link_0")
-        base.pos = [0.0, 0.0, _PANDA_PEDESTAL]
-        spec.worldbody.add_geom(
-            name="pedestal",
-            type=mujoco.mjtGeom.mjGEOM_BOX,
-            pos=[0.0, 0.0, _PANDA_PEDESTAL / 2],
-            size=[0.12, 0.12, _PANDA_PEDESTAL / 2],
-            rgba=[0.3, 0.3, 0.32, 1.0],
-            contype=STATIC_CONTYPE,
-            conaffinity=0,
-        )
-        _add_environment(spec, (0.65, 0.0), (0.3, 0.5))
         held = (("pouring", pour, *_GRIPPER["panda"]),)
         home = mujoco.MjData(bare)
         mujoco.mj_resetDataKeyframe(bare, home, bare.key("home").id)
         mujoco.mj_kinematics(bare, home)
         tcp = home.site_xpos[bare.site("tcp").id] + (0.0, 0.0, _PANDA_PEDESTAL)
-        spot = (tcp[0] + pour.diameter / 2, tcp[1] + recv.diameter / 2 + 0.03, TABLE_HEIGHT)
+        # beside the held container (upright, they never touch), on the pouring side (+y)
+        side = tcp[1] + (pour.diameter + recv.diameter) / 2 + 0.02
+        spot = (tcp[0] + pour.diameter / 2, side, TABLE_HEIGHT)
         rbody = add_container_body(
             spec, spec.worldbody, recv, name="receiving", pos=spot, max_error=max_error
         )
@@ -315,7 +331,8 @@ def build_planning_scene(
     table: bool = False,
 ) -> mujoco.MjModel:
     """Robot plus obstacles on mocap bodies ``obstacle_<i>`` (move them every step with
-    :func:`set_obstacle_pose`); optionally the table in front of the robot.
+    :func:`set_obstacle_pose`); with ``table``, the pour scene's floor and table (and the
+    Panda's pedestal, which lifts its base 0.2 m).
 
     Obstacle geoms are static-class colliders (they touch robot geoms, so collisions show up
     in ``data.contact``) and live in geom group 0.
@@ -324,10 +341,8 @@ def build_planning_scene(
         UnknownNameError: unknown robot.
         InvalidParameterError: an obstacle of unknown kind or with a non-positive size.
     """
-    spec = robot_spec(robot)
+    spec = _robot_at_table(robot) if table else robot_spec(robot)
     spec.modelname = f"{robot}_planning"
-    if table:
-        _add_environment(spec, (0.78, 0.0) if robot == "movo" else (0.65, 0.0), (0.3, 0.5))
     for i, ob in enumerate(obstacles):
         if ob.kind not in _OBSTACLE_TYPES:
             raise InvalidParameterError(

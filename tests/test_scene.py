@@ -114,9 +114,10 @@ def test_movo_weighs_liquid_with_the_left_wrist_sensor() -> None:
     np.testing.assert_allclose(world, (0.0, 0.0, (1.435 + 0.2 + 0.1) * G), atol=1e-3)
 
 
-def test_planning_scene_obstacles_move_and_collide() -> None:
+@pytest.mark.parametrize(("robot", "ee"), [("movo", "right_ee"), ("panda", "ee")])
+def test_planning_scene_obstacles_move_and_collide(robot: str, ee: str) -> None:
     model = build_planning_scene(
-        "movo",
+        robot,
         [
             ObstacleGeom("sphere", (0.05,), (2.0, 0.0, 1.0)),
             ObstacleGeom("box", (0.1, 0.1, 0.1), (2, 1, 1)),
@@ -127,10 +128,10 @@ def test_planning_scene_obstacles_move_and_collide() -> None:
     mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
     mujoco.mj_forward(model, data)
     assert data.ncon == 0
-    ee = data.site_xpos[model.site("right_ee").id].copy()
-    set_obstacle_pose(model, data, "obstacle_0", ee)
+    target = data.site_xpos[model.site(ee).id].copy()
+    set_obstacle_pose(model, data, "obstacle_0", target)
     mujoco.mj_forward(model, data)
-    np.testing.assert_allclose(data.xpos[model.body("obstacle_0").id], ee)
+    np.testing.assert_allclose(data.xpos[model.body("obstacle_0").id], target)
     hit = {model.geom(c.geom1).name for c in data.contact[: data.ncon]}
     hit |= {model.geom(c.geom2).name for c in data.contact[: data.ncon]}
     assert "obstacle_0" in hit
@@ -148,3 +149,34 @@ def test_bad_names_list_the_known_ones() -> None:
     assert "kettle" in str(info.value)
     with pytest.raises(ValueError, match="tray"):
         build_pour_scene("training", "bucket", "panda")
+
+
+def test_view_records_every_visible_geom(tmp_path, capsys) -> None:
+    from pourbench.cli import main
+    from pourbench.view import world_meshes
+
+    scene = build_pour_scene("cup_small", "tray", "panda")
+    data = scene.make_data()
+    seen = 0
+    for _, verts, tris, _ in world_meshes(scene.model, data):
+        seen += 1
+        assert tris.max() < len(verts)
+    visible = np.isin(scene.model.geom_group, (0, 1, 2)).sum()
+    assert seen == visible
+    for g in range(scene.model.ngeom):  # tessellations stay inside each geom's bounding sphere
+        if scene.model.geom_group[g] in (1, 2):
+            mesh = next(
+                m
+                for m in world_meshes(scene.model, data)
+                if m[0].endswith(f"/{scene.model.geom(g).name}")
+            )
+            r = np.linalg.norm(mesh[1] - data.geom_xpos[g], axis=1)
+            assert r.max() <= scene.model.geom_rbound[g] + 1e-9
+    out = tmp_path / "s.rrd"
+    assert (
+        main(["view", "scene", "--robot", "panda", "--pouring", "cup_small", "--out", str(out)])
+        == 0
+    )
+    assert out.stat().st_size > 10_000
+    assert main(["view", "scene", "--robot", "none", "--pouring", "kettle", "--out", str(out)]) == 2
+    assert "known containers" in capsys.readouterr().err

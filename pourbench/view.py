@@ -1,0 +1,130 @@
+"""Look at a MuJoCo scene: a rerun recording (``.rrd``) of its geoms, or MuJoCo's viewer.
+
+Rerun has no MuJoCo loader, so geoms are turned into triangle meshes here: mesh geoms from the
+compiled model's vertices and faces, primitives (plane, sphere, capsule, cylinder, box) from a
+small hand-written tessellation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+_RINGS, _SEGMENTS = 8, 16
+
+
+def _sphere(radius: float, half_length: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """UV sphere (a capsule when ``half_length`` > 0), axis z: vertices, triangles."""
+    lat = np.linspace(0.0, np.pi, _RINGS + 2)[1:-1]  # no ring on the equator
+    lon = np.linspace(0.0, 2 * np.pi, _SEGMENTS, endpoint=False)
+    ring = np.stack(
+        [
+            np.outer(np.sin(lat), np.cos(lon)).ravel(),
+            np.outer(np.sin(lat), np.sin(lon)).ravel(),
+            np.repeat(np.cos(lat), _SEGMENTS),
+        ],
+        axis=1,
+    )
+    verts = np.concatenate([[[0, 0, 1.0]], ring, [[0, 0, -1.0]]]) * radius
+    verts[:, 2] += np.sign(verts[:, 2]) * half_length
+    tris = []
+    n = _SEGMENTS
+    for j in range(n):
+        tris.append((0, 1 + j, 1 + (j + 1) % n))
+        last = 1 + (_RINGS - 1) * n
+        tris.append((len(verts) - 1, last + (j + 1) % n, last + j))
+    for r in range(_RINGS - 1):
+        a, b = 1 + r * n, 1 + (r + 1) * n
+        for j in range(n):
+            k = (j + 1) % n
+            tris += [(a + j, b + j, b + k), (a + j, b + k, a + k)]
+    return verts, np.array(tris)
+
+
+def _cylinder(radius: float, half_length: float) -> tuple[np.ndarray, np.ndarray]:
+    lon = np.linspace(0.0, 2 * np.pi, _SEGMENTS, endpoint=False)
+    circle = np.stack([np.cos(lon), np.sin(lon)], axis=1) * radius
+    n = _SEGMENTS
+    verts = np.concatenate(
+        [
+            np.column_stack([circle, np.full(n, half_length)]),
+            np.column_stack([circle, np.full(n, -half_length)]),
+            [[0, 0, half_length], [0, 0, -half_length]],
+        ]
+    )
+    tris = []
+    for j in range(n):
+        k = (j + 1) % n
+        tris += [(j, n + j, n + k), (j, n + k, k), (2 * n, j, k), (2 * n + 1, n + k, n + j)]
+    return verts, np.array(tris)
+
+
+def _box(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    tris = [t for a, b, c, d in faces for t in ((a, b, c), (a, c, d))]
+    return corners * half, np.array(tris)
+
+
+def geom_mesh(model: mujoco.MjModel, g: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Vertices (in the geom frame, m) and triangles of geom ``g``; None for unsupported types."""
+    t, size = model.geom_type[g], model.geom_size[g]
+    if t == mujoco.mjtGeom.mjGEOM_MESH:
+        m = model.geom_dataid[g]
+        v0, nv = model.mesh_vertadr[m], model.mesh_vertnum[m]
+        f0, nf = model.mesh_faceadr[m], model.mesh_facenum[m]
+        return model.mesh_vert[v0 : v0 + nv].astype(float), model.mesh_face[f0 : f0 + nf]
+    if t == mujoco.mjtGeom.mjGEOM_PLANE:
+        hx, hy = (s if s > 0 else 5.0 for s in size[:2])
+        return _box(np.array([hx, hy, 0.0]))
+    if t == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return _sphere(size[0])
+    if t == mujoco.mjtGeom.mjGEOM_CAPSULE:
+        return _sphere(size[0], size[1])
+    if t == mujoco.mjtGeom.mjGEOM_CYLINDER:
+        return _cylinder(size[0], size[1])
+    if t == mujoco.mjtGeom.mjGEOM_BOX:
+        return _box(size)
+    return None
+
+
+def world_meshes(
+    model: mujoco.MjModel, data: mujoco.MjData, groups: Sequence[int] = (0, 1, 2)
+) -> Iterator[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
+    """(entity path, world vertices, triangles, rgba) of every geom in ``groups``."""
+    for g in range(model.ngeom):
+        if model.geom_group[g] not in groups:
+            continue
+        mesh = geom_mesh(model, g)
+        if mesh is None:
+            continue
+        verts, tris = mesh
+        world = data.geom_xpos[g] + verts @ data.geom_xmat[g].reshape(3, 3).T
+        body = model.body(model.geom_bodyid[g]).name or f"body_{model.geom_bodyid[g]}"
+        name = model.geom(g).name or f"geom_{g}"
+        rgba = model.geom_rgba[g]
+        if model.geom_matid[g] >= 0:
+            rgba = model.mat_rgba[model.geom_matid[g]]
+        yield f"scene/{body}/{name}", world, tris, rgba
+
+
+def record(model: mujoco.MjModel, data: mujoco.MjData, path: str | Path) -> Path:
+    """Write the scene's geoms at ``data``'s pose to a rerun recording at ``path``."""
+    import rerun as rr
+
+    path = Path(path)
+    rec = rr.RecordingStream("pourbench")
+    rec.save(str(path))
+    rec.log("scene", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    for entity, verts, tris, rgba in world_meshes(model, data):
+        colour = (np.clip(rgba, 0, 1) * 255).astype(np.uint8)
+        rec.log(
+            entity,
+            rr.Mesh3D(vertex_positions=verts, triangle_indices=tris, albedo_factor=colour),
+            static=True,
+        )
+    rec.flush()
+    return path
