@@ -12,7 +12,13 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-BENCH_SUITES: tuple[str, ...] = ()
+BENCH_SUITES: tuple[str, ...] = ("teleop",)
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from pourbench.demo import run_demo
+
+    return run_demo(args)
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -56,6 +62,12 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pourbench", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
+
+    demo = sub.add_parser("demo", help="pour 200 g of water between two cups; write a recording")
+    from pourbench.demo import add_arguments as demo_arguments
+
+    demo_arguments(demo)
+    demo.set_defaults(func=_cmd_demo)
 
     bench = sub.add_parser("bench", help="run a benchmark suite and write leaderboard/<suite>.*")
     bench.add_argument("suite", choices=(*BENCH_SUITES, "all"))

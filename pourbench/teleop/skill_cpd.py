@@ -1,0 +1,298 @@
+"""The Skill-CPD arbitration state machine (thesis Algorithms 2 and 3, §5.2-5.3.4).
+
+Every packet period the robot receives the operator's position or nothing. The machine is in
+one of four states:
+
+* ``direct``: the robot follows the operator (``alpha = 1`` in ``u = alpha u_h +
+  (1 - alpha) u_a``, Eq. 5.1). Executed positions are kept in ``xi_h*`` by the Δd rule.
+* ``hold``: packets stopped; the robot holds its last position. It stays here while the
+  deadline (50 ms) has not passed, and for the whole outage when it may not switch (mode
+  ``"none"``, or recognition confidence below ``lambda_minconf``).
+* ``skill``: deadline missed and the skill recognised with confidence >= ``lambda_minconf``
+  (Eq. 5.2): the robot runs the registered skill ``xi_c`` (``alpha = 0``), advancing along
+  it at the operator's mean speed measured before the drop.
+* ``handback``: packets are back; ``alpha`` rises by 0.1 per packet (Eq. 5.10) and the
+  command is ``(1 - alpha) xi_c + alpha h_t``; at ``alpha = 1`` the state is ``direct``.
+
+Registration (Algorithm 3, mode ``"skill_cpd"``): the skill prefix up to the recognised
+progress is registered rigidly (with scale) onto ``xi_h*`` and the transform applied to the
+whole skill; if the mean distance from ``xi_h*`` to the result exceeds 0.1 cm the rigidly
+registered prefix is registered non-rigidly (``beta = 3``, ``lmbda = 3``) and CPD's
+displacement field, which is defined everywhere, is applied to the whole skill. (The thesis
+registers the complete skill; with a partial operator trajectory that pulls the unmatched
+rest of the skill onto the operator's points, so the field is extrapolated instead.) The
+closest step to the robot's position within ±10 steps of the recognised progress is where
+the skill starts (Eq. 5.9). Mode ``"standard"`` is standard shared autonomy: the same
+machine with the unregistered skill. Mode ``"none"`` never switches (the robot holds still
+while disconnected and jumps back to the operator on reconnection).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pourbench.errors import InvalidParameterError, check_finite
+from pourbench.teleop.cpd import register_nonrigid, register_rigid
+from pourbench.teleop.network import DeadlineDetector
+from pourbench.teleop.skills import SkillLibrary
+
+__all__ = ["MODES", "Registration", "SkillCPD", "SkillCPDConfig", "closest_step"]
+
+MODES = ("none", "standard", "skill_cpd")
+
+
+@dataclass(frozen=True)
+class SkillCPDConfig:
+    """Parameters of the arbitration (defaults: thesis Table 5.2, 2-D simulation).
+
+    Attributes:
+        mode: ``"none"``, ``"standard"`` or ``"skill_cpd"``.
+        dt: packet period, s.
+        deadline: lambda_deadline, s.
+        min_confidence: lambda_minconf.
+        delta_d: Δd sampling distance, m.
+        rigid_error: rigid registration accepted below this mean distance, m (0.1 cm).
+        window: closest-step search window, ± steps.
+        alpha_step: alpha increment per packet during the hand-back.
+        cpd_w: CPD outlier weight.
+        beta: non-rigid kernel width (normalised units).
+        lmbda: non-rigid regularisation weight.
+        fgt: use the Fast Gauss Transform in non-rigid CPD.
+        lowrank: use the low-rank kernel in non-rigid CPD.
+        cpd_tol: CPD stops when sigma^2 changes by less than this fraction per iteration.
+        cpd_max_iter: CPD iteration cap (rigid and non-rigid each).
+    """
+
+    mode: str = "skill_cpd"
+    dt: float = 0.033
+    deadline: float = 0.050
+    min_confidence: float = 0.9
+    delta_d: float = 0.006
+    rigid_error: float = 0.001
+    window: int = 10
+    alpha_step: float = 0.1
+    cpd_w: float = 0.1
+    beta: float = 3.0
+    lmbda: float = 3.0
+    fgt: bool = False
+    lowrank: bool = True
+    cpd_tol: float = 1e-4
+    cpd_max_iter: int = 100
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise InvalidParameterError(f"mode must be one of {MODES}, got {self.mode!r}")
+        for name in ("dt", "deadline", "delta_d", "alpha_step"):
+            if check_finite(name, getattr(self, name)) <= 0:
+                raise InvalidParameterError(f"{name} must be > 0, got {getattr(self, name)}")
+        check_finite("min_confidence", self.min_confidence, minimum=0.0)
+        check_finite("rigid_error", self.rigid_error, minimum=0.0)
+        if int(self.window) < 0:
+            raise InvalidParameterError(f"window must be >= 0, got {self.window}")
+
+
+@dataclass
+class Registration:
+    """What happened at a switch to the skill.
+
+    Attributes:
+        label: recognised skill.
+        confidence: recognition confidence.
+        kind: ``"rigid"``, ``"nonrigid"`` or ``"none"`` (standard shared autonomy).
+        error: mean distance from ``xi_h*`` to the registered skill, m.
+        step: index of the closest step where the skill starts.
+        seconds: wall time of the registration and closest-step search (one core).
+        recognition_seconds: wall time of the recognition.
+        trajectory: (M, D) the registered skill ``xi_c``, m.
+    """
+
+    label: str
+    confidence: float
+    kind: str
+    error: float
+    step: int
+    seconds: float
+    recognition_seconds: float
+    trajectory: np.ndarray = field(repr=False)
+
+
+def closest_step(point: np.ndarray, traj: np.ndarray, centre: int, window: int) -> int:
+    """Index of the point of ``traj`` closest to ``point`` within ``centre ± window`` (Eq. 5.9)."""
+    lo = max(0, int(centre) - int(window))
+    hi = min(traj.shape[0], int(centre) + int(window) + 1)
+    if lo >= hi:
+        lo, hi = max(0, traj.shape[0] - 1 - int(window)), traj.shape[0]
+    d = np.linalg.norm(traj[lo:hi] - point, axis=1)
+    return lo + int(np.argmin(d))
+
+
+def _mean_nn_distance(A: np.ndarray, B: np.ndarray) -> float:
+    """Mean over points of A of the distance to the nearest point of B."""
+    d2 = np.sum(A**2, axis=1)[:, None] + np.sum(B**2, axis=1)[None, :] - 2.0 * A @ B.T
+    return float(np.mean(np.sqrt(np.maximum(d2.min(axis=1), 0.0))))
+
+
+class SkillCPD:
+    """Shared-autonomy arbitration between the operator and a learnt skill.
+
+    Args:
+        library: fitted :class:`~pourbench.teleop.skills.SkillLibrary`.
+        config: parameters.
+    """
+
+    def __init__(self, library: SkillLibrary, config: SkillCPDConfig | None = None) -> None:
+        self.library = library
+        self.config = config or SkillCPDConfig()
+        self.detector = DeadlineDetector(self.config.deadline)
+        self.state = "direct"
+        self.alpha = 1.0
+        self.position: np.ndarray | None = None
+        self.history: list[np.ndarray] = []  # xi_h*: executed positions, Δd-sampled
+        self.registrations: list[Registration] = []
+        self.transitions: list[tuple[float, str, str]] = []
+        self._skill: np.ndarray | None = None
+        self._cum: np.ndarray | None = None
+        self._s = 0.0  # arc length along the skill, m
+        self._path_len = 0.0  # operator path length between consecutive direct packets, m
+        self._path_time = 0.0  # and the time it took, s
+        self._last_packet: np.ndarray | None = None
+        self._last_packet_t: float | None = None
+
+    # ------------------------------------------------------------------ helpers
+    def _set_state(self, t: float, new: str) -> None:
+        if new != self.state:
+            self.transitions.append((float(t), self.state, new))
+            self.state = new
+
+    def _record(self, p: np.ndarray) -> None:
+        if not self.history or np.linalg.norm(p - self.history[-1]) >= self.config.delta_d:
+            self.history.append(p.copy())
+
+    def _speed(self) -> float:
+        """Operator's mean speed over the consecutive packets received in ``direct``, m/s."""
+        return self._path_len / self._path_time if self._path_time > 0 else 0.0
+
+    def _skill_point(self) -> np.ndarray:
+        assert self._skill is not None and self._cum is not None
+        s = min(self._s, float(self._cum[-1]))
+        return np.array(
+            [np.interp(s, self._cum, self._skill[:, d]) for d in range(self._skill.shape[1])]
+        )
+
+    def _register(self, t: float) -> bool:
+        """Recognise and register (Algorithm 3); False when the skill may not be used."""
+        cfg = self.config
+        if cfg.mode == "none" or len(self.history) < 2:
+            return False
+        X = np.array(self.history)
+        t0 = time.perf_counter()
+        rec = self.library.recognize(X)
+        t1 = time.perf_counter()
+        if rec.confidence < cfg.min_confidence:
+            return False
+        xi_a = self.library.skill(rec.label).trajectory
+        # rough disconnection index: skill steps and operator samples are both ~Δd apart
+        i0 = min(X.shape[0] - 1, xi_a.shape[0] - 1)
+        robot = self.position if self.position is not None else X[-1]
+        if cfg.mode == "standard":
+            xi_c, kind, err = xi_a, "none", _mean_nn_distance(X, xi_a)
+        else:
+            prefix = xi_a[: max(i0 + 1, 2)]
+            rig = register_rigid(X, prefix, w=cfg.cpd_w, tol=cfg.cpd_tol, max_iter=cfg.cpd_max_iter)
+            i0 = min(round((X.shape[0] - 1) / max(rig.s, 1e-9)), xi_a.shape[0] - 1)
+            xi_c = rig.transform(xi_a)
+            err = _mean_nn_distance(X, xi_c)
+            kind = "rigid"
+            if err >= cfg.rigid_error:
+                nr = register_nonrigid(
+                    X,
+                    xi_c[: i0 + 1],
+                    beta=cfg.beta,
+                    lmbda=cfg.lmbda,
+                    w=cfg.cpd_w,
+                    fgt=cfg.fgt,
+                    lowrank=cfg.lowrank,
+                    tol=cfg.cpd_tol,
+                    max_iter=cfg.cpd_max_iter,
+                )
+                xi_c = nr.transform(xi_c)
+                err = _mean_nn_distance(X, xi_c)
+                kind = "nonrigid"
+        step = closest_step(robot, xi_c, i0, cfg.window)
+        t2 = time.perf_counter()
+        self._skill = xi_c
+        seg = np.linalg.norm(np.diff(xi_c, axis=0), axis=1)
+        self._cum = np.concatenate([[0.0], np.cumsum(seg)])
+        self._s = float(self._cum[step])
+        self.registrations.append(
+            Registration(rec.label, rec.confidence, kind, err, step, t2 - t1, t1 - t0, xi_c)
+        )
+        return True
+
+    # ------------------------------------------------------------------ main step
+    def step(self, t: float, packet: np.ndarray | None) -> np.ndarray:
+        """Advance one packet period.
+
+        Args:
+            t: time, s.
+            packet: the operator's position (D,), metres, or ``None`` when nothing arrived.
+
+        Returns:
+            The robot's commanded position (D,), metres.
+        """
+        cfg = self.config
+        if packet is not None:
+            h = np.asarray(packet, dtype=float)
+            if h.ndim != 1 or not np.all(np.isfinite(h)):
+                raise InvalidParameterError(f"packet must be a finite 1-D position, got {packet!r}")
+            if self.position is not None and h.shape != self.position.shape:
+                raise InvalidParameterError(
+                    f"packet has {h.shape[0]} dims, the robot has {self.position.shape[0]}"
+                )
+            if self.state in ("direct", "hold"):
+                consecutive = (
+                    self._last_packet_t is not None and t - self._last_packet_t <= cfg.deadline
+                )
+                if self.state == "direct" and consecutive and self._last_packet is not None:
+                    self._path_len += float(np.linalg.norm(h - self._last_packet))
+                    self._path_time += float(t - self._last_packet_t)
+                self._set_state(t, "direct")
+                self.alpha = 1.0
+                self.position = h.copy()
+            else:  # skill or handback: reverse takeover
+                if self.state == "skill":
+                    self._set_state(t, "handback")
+                    self.alpha = 0.0
+                self._s += self._speed() * cfg.dt
+                self.alpha = min(1.0, self.alpha + cfg.alpha_step)
+                if self.alpha >= 1.0 - 1e-9:
+                    self.alpha = 1.0
+                    self.position = h.copy()
+                    self._set_state(t, "direct")
+                else:
+                    self.position = (1.0 - self.alpha) * self._skill_point() + self.alpha * h
+            self.detector.packet(t)
+            self._last_packet = h.copy()
+            self._last_packet_t = float(t)
+            self._record(self.position)
+            return self.position.copy()
+        if self.position is None:
+            raise InvalidParameterError("no packet has arrived yet: the robot has no position")
+        if self.state == "direct":
+            if self.detector.disconnected(t):
+                if self._register(t):
+                    self._set_state(t, "skill")
+                    self.alpha = 0.0
+                    self.position = self._skill_point()
+                else:
+                    self._set_state(t, "hold")
+        elif self.state in ("skill", "handback"):
+            self._set_state(t, "skill")
+            self.alpha = 0.0
+            self._s += self._speed() * cfg.dt
+            self.position = self._skill_point()
+        self._record(self.position)
+        return self.position.copy()
