@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import warp as wp
 
+wp.config.quiet = True
 wp.set_module_options({"enable_backward": False})
 
 # Collider kinds (one SDF routine each).
@@ -117,13 +118,13 @@ def build_neighbours(
     pi = p_grid[i]
     wi = world[i]
     h2 = h * h
-    count = 0
-    j = 0
+    count = int(0)
+    j = int(0)
     query = wp.hash_grid_query(grid, pi, h)
     while wp.hash_grid_query_next(query, j):
-        if j != i and world[j] == wi and count < max_nb:
-            r = pi - p_grid[j]
-            if wp.dot(r, r) < h2:
+        r = pi - p_grid[j]
+        if wp.dot(r, r) < h2 and j != i and count < max_nb:
+            if world[j] == wi:
                 nbr[i, count] = j
                 count += 1
     nbr_count[i] = count
@@ -148,7 +149,7 @@ def compute_lambda(
     pi = p[i]
     rho = spiky(0.0, h)
     grad_i = wp.vec3(0.0)
-    sum_grad2 = 0.0
+    sum_grad2 = float(0.0)
     for k in range(nbr_count[i]):
         j = nbr[i, k]
         r = pi - p[j]
@@ -187,7 +188,7 @@ def compute_delta(
         r = pi - p[j]
         d2 = wp.dot(r, r)
         ratio = poly6(d2, h) / scorr_wdq
-        s_corr = 0.0
+        s_corr = float(0.0)
         lsum = li + lam[j]
         if scorr_n == 4.0:
             s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
@@ -243,9 +244,9 @@ def sd_revolved(q: wp.vec3, params: wp.array(dtype=float), start: int, count: in
     """Thin wall of thickness params[start] around a revolved (ρ, z) polyline."""
     wall = params[start]
     rho = wp.sqrt(q[0] * q[0] + q[1] * q[1])
-    best = 1.0e10
-    best_dr = 0.0
-    best_dz = 1.0
+    best = float(1.0e10)
+    best_dr = float(0.0)
+    best_dz = float(1.0)
     npts = (count - 1) / 2
     for k in range(npts - 1):
         ar = params[start + 1 + 2 * k]
@@ -263,13 +264,13 @@ def sd_revolved(q: wp.vec3, params: wp.array(dtype=float), start: int, count: in
             best_dr = dr
             best_dz = dz
     d = wp.sqrt(best)
-    nr = 0.0
-    nz = 1.0
+    nr = float(0.0)
+    nz = float(1.0)
     if d > 1.0e-9:
         nr = best_dr / d
         nz = best_dz / d
-    ux = 1.0
-    uy = 0.0
+    ux = float(1.0)
+    uy = float(0.0)
     if rho > 1.0e-9:
         ux = q[0] / rho
         uy = q[1] / rho
@@ -322,8 +323,8 @@ def collider_sdf(
         rad = params[start]
         hl = params[start + 1]
         rho = wp.sqrt(q[0] * q[0] + q[1] * q[1])
-        ux = 1.0
-        uy = 0.0
+        ux = float(1.0)
+        uy = float(0.0)
         if rho > 1.0e-9:
             ux = q[0] / rho
             uy = q[1] / rho
@@ -434,7 +435,7 @@ def collide(
     w = world[i]
     pi = p[i]
     m = mass[w]
-    n_contacts = 0
+    n_contacts = int(0)
     for c in range(world_col_start[w], world_col_end[w]):
         kind = col_kind[c]
         tf = col_pose[c]
@@ -446,10 +447,10 @@ def collide(
         seg = b - a
         seg_len = wp.length(seg)
         q = b
-        hit = 0
+        hit = int(0)
         if sa[0] > -radius and seg_len > 1.0e-9 and wp.dot(seg, na) < 0.0:
             # sphere-trace from a toward b; stop at the first point within `radius`
-            t = 0.0
+            t = float(0.0)
             for _it in range(24):
                 pt = a + seg * t
                 s = collider_sdf(kind, col_params, col_start[c], col_count[c], col_mesh[c], pt)
@@ -580,7 +581,7 @@ def velocity_filters(
     w = world[i]
     xi = x[i]
     vi = v[i]
-    wsum = 0.0
+    wsum = float(0.0)
     vavg = wp.vec3(0.0)
     eta = wp.vec3(0.0)
     coh = wp.vec3(0.0)
