@@ -70,6 +70,8 @@ class NMPCConfig:
             still count in the merit function and the feasibility checks).
         joint_limit_margin: distance kept from joint-position limits (rad).
         restoration_iters: iterations of the feasibility-restoration solve.
+        restoration_tol: the restoration runs when a constraint of the warm start is violated
+            by more than this (m or rad); smaller violations are left to the SQP.
     """
 
     q_pos: float = 5.0
@@ -88,9 +90,10 @@ class NMPCConfig:
     time_budget_s: float | None = None
     step_tol: float = 1e-4
     merit_rtol: float = 1e-6
-    activation_distance: float = 0.2
+    activation_distance: float = 0.1
     joint_limit_margin: float = 0.01
     restoration_iters: int = 10
+    restoration_tol: float = 1e-4
 
     def __post_init__(self) -> None:
         for name in ("q_pos", "q_quat", "pf_pos", "pf_quat", "r", "ts", "safety_distance"):
@@ -452,24 +455,24 @@ class NMPCPlanner:
         h = np.concatenate(h_parts)
         m = len(rows)
         if elastic and m:
-            # Slack s ≥ 0 on every distance row: −∇sd d − s ≤ sd − TH, cost ρ Σ s + ε s².
-            rho = 1e4
+            # One shared slack s ≥ 0 on the distance rows (ℓ∞ elastic mode):
+            # −∇sd d − s ≤ sd − TH, extra cost ρ s + ½ s². Always feasible (d = −U, s large).
+            rho = 1e3
             nU = self.nU
-            Hs = np.zeros((nU + m, nU + m))
+            Hs = np.zeros((nU + 1, nU + 1))
             Hs[:nU, :nU] = H
-            Hs[nU:, nU:] = 1e-6 * np.eye(m)
-            gs = np.concatenate([g, np.full(m, rho)])
-            Gs = np.zeros((G.shape[0], nU + m))
+            Hs[nU, nU] = 1.0
+            gs = np.append(g, rho)
+            Gs = np.zeros((G.shape[0], nU + 1))
             Gs[:, :nU] = G
-            Gs[np.arange(m), nU + np.arange(m)] = -1.0
-            lbs = np.concatenate([lb, np.zeros(m)])
-            ubs = np.concatenate([ub, np.full(m, np.inf)])
-            H, g, G, lb, ub = Hs, gs, Gs, lbs, ubs
+            Gs[:m, nU] = -1.0
+            H, g, G = Hs, gs, Gs
+            lb, ub = np.append(lb, 0.0), np.append(ub, 1e6)
         if G.shape[0] == 0:
             G, h = None, None
         problem = qpsolvers.Problem(H, g, G, h, lb=lb, ub=ub)
         sol = qpsolvers.solve_problem(
-            problem, solver="proxqp", backend="dense", eps_abs=1e-9, eps_rel=0.0
+            problem, solver="proxqp", backend="dense", eps_abs=1e-7, eps_rel=0.0, max_iter=2000
         )
         if not sol.found or sol.x is None or not np.all(np.isfinite(sol.x)):
             return None
@@ -489,9 +492,12 @@ class NMPCPlanner:
         g0 = np.zeros(self.nU)
         for its in range(1, c.restoration_iters + 1):
             viol = self._violation(ev)
-            if viol <= 1e-6:
+            if self._max_violation(ev) <= c.restoration_tol:
                 return ev, its - 1
-            out = self._solve_qp(H, g0, ev, prob, elastic=True, rows=self._rows(ev))
+            rows = self._rows(ev)
+            out = self._solve_qp(H, g0, ev, prob, elastic=False, rows=rows)
+            if out is None:  # linearised constraints infeasible: elastic mode
+                out = self._solve_qp(H, g0, ev, prob, elastic=True, rows=rows)
             if out is None:
                 break
             d, _ = out
@@ -507,6 +513,11 @@ class NMPCPlanner:
                 break
         return ev, its
 
+    def _max_violation(self, ev: _Eval) -> float:
+        v = np.maximum(self.config.safety_distance - ev.sd, 0.0)
+        lin = np.maximum(-ev.lin_slack, 0.0)
+        return float(max(v.max(initial=0.0), lin.max(initial=0.0)))
+
     def _violation(self, ev: _Eval) -> float:
         v = np.maximum(self.config.safety_distance - ev.sd, 0.0).sum()
         return float(v + np.maximum(-ev.lin_slack, 0.0).sum())
@@ -521,6 +532,8 @@ class NMPCPlanner:
         c = self.config
         P = ev.sd.size
         mu = np.zeros(P)
+        # BFGS starts every call from the exact Hessian of the input term 2R̄ (carrying the
+        # previous call's matrix over, shifted, was tried and needed more iterations).
         B = np.diag(2.0 * self.sqrt_rbar**2) if c.hessian == "bfgs" else None
         status = "iteration_cap"
         k = 0
@@ -562,7 +575,8 @@ class NMPCPlanner:
                 B = self._bfgs(B, alpha * d, new, ev, lam)
             phi1 = self._merit(new, mu)
             ev = new
-            if phi0 - phi1 <= c.merit_rtol * max(abs(phi0), 1e-12) and self._violation(ev) <= 1e-6:
+            small = phi0 - phi1 <= c.merit_rtol * max(abs(phi0), 1e-12)
+            if small and self._max_violation(ev) <= c.restoration_tol:
                 status = "converged"
                 break
             if c.time_budget_s is not None and time.perf_counter() - t_start > c.time_budget_s:
