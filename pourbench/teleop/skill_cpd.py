@@ -200,7 +200,9 @@ class SkillCPD:
         if cfg.mode == "standard":
             xi_c, kind, err = xi_a, "none", _mean_nn_distance(X, xi_a)
         else:
-            prefix = xi_a[: max(i0 + 1, 2)]
+            # the prefix reaches one window past the rough index, so that the part of the
+            # skill the operator has drawn is inside it even when the rough index is short
+            prefix = xi_a[: max(min(i0 + cfg.window, xi_a.shape[0] - 1) + 1, 2)]
             rig = register_rigid(X, prefix, w=cfg.cpd_w, tol=cfg.cpd_tol, max_iter=cfg.cpd_max_iter)
             i0 = min(round((X.shape[0] - 1) / max(rig.s, 1e-9)), xi_a.shape[0] - 1)
             xi_c = rig.transform(xi_a)
@@ -209,7 +211,7 @@ class SkillCPD:
             if err >= cfg.rigid_error:
                 nr = register_nonrigid(
                     X,
-                    xi_c[: i0 + 1],
+                    xi_c[: min(i0 + cfg.window, xi_a.shape[0] - 1) + 1],
                     beta=cfg.beta,
                     lmbda=cfg.lmbda,
                     w=cfg.cpd_w,

@@ -1,0 +1,131 @@
+"""Coherent Point Drift: known transforms are recovered; bad input is refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pourbench.teleop import (
+    gauss_transform,
+    register_affine,
+    register_nonrigid,
+    register_rigid,
+)
+
+
+def _rot2(a: float) -> np.ndarray:
+    return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+
+def _rot3(ax: float, az: float) -> np.ndarray:
+    rx = np.array([[1, 0, 0], [0, np.cos(ax), -np.sin(ax)], [0, np.sin(ax), np.cos(ax)]])
+    rz = np.array([[np.cos(az), -np.sin(az), 0], [np.sin(az), np.cos(az), 0], [0, 0, 1]])
+    return rz @ rx
+
+
+def _with_outliers(X: np.ndarray, frac: float, rng: np.random.Generator) -> np.ndarray:
+    n = round(frac / (1.0 - frac) * X.shape[0])  # frac of the final set are outliers
+    out = rng.uniform(X.min(axis=0), X.max(axis=0), size=(n, X.shape[1]))
+    return rng.permutation(np.vstack([X, out]))
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_rigid_recovers_rotation_translation_scale_with_10pct_outliers(dim: int) -> None:
+    rng = np.random.default_rng(7)
+    Y = rng.uniform(-0.3, 0.3, size=(150, dim))
+    R = _rot2(0.5) if dim == 2 else _rot3(0.3, -0.6)
+    s, t = 1.25, rng.uniform(-0.1, 0.1, size=dim)
+    X = _with_outliers(s * Y @ R.T + t, 0.10, rng)
+    res = register_rigid(X, Y, w=0.1)
+    assert np.max(np.abs(res.R - R)) < 1e-3
+    assert np.max(np.abs(res.t - t)) < 1e-3
+    assert abs(res.s - s) < 1e-3
+    assert np.isclose(np.linalg.det(res.R), 1.0)
+    np.testing.assert_allclose(res.transform(Y), res.points, atol=1e-12)
+
+
+def test_rigid_without_scale_keeps_unit_scale() -> None:
+    rng = np.random.default_rng(8)
+    Y = rng.uniform(-0.3, 0.3, size=(100, 2))
+    X = Y @ _rot2(-0.4).T + np.array([0.05, 0.02])
+    res = register_rigid(X, Y, scale=False)
+    assert res.s == 1.0
+    assert np.max(np.abs(res.R - _rot2(-0.4))) < 1e-3
+
+
+def test_affine_recovers_known_map_with_outliers() -> None:
+    rng = np.random.default_rng(9)
+    Y = rng.uniform(-0.3, 0.3, size=(150, 2))
+    B = np.array([[1.2, 0.3], [-0.2, 0.8]])
+    t = np.array([0.07, -0.04])
+    X = _with_outliers(Y @ B.T + t, 0.10, rng)
+    res = register_affine(X, Y, w=0.1)
+    assert np.max(np.abs(res.B - B)) < 1e-3
+    assert np.max(np.abs(res.t - t)) < 1e-3
+
+
+def _disk_and_deformation() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(3)
+    r = np.sqrt(rng.uniform(0, 1, 150)) * 0.2
+    a = rng.uniform(0, 2 * np.pi, 150)
+    Y = np.c_[r * np.cos(a), r * np.sin(a)]
+    X = Y + np.c_[0.03 * np.sin(Y[:, 1] / 0.1), 0.03 * np.cos(Y[:, 0] / 0.1)]
+    return X, Y
+
+
+def test_nonrigid_recovers_smooth_deformation_that_rigid_and_affine_cannot() -> None:
+    X, Y = _disk_and_deformation()  # deformation up to 4.2 cm
+    exact = register_nonrigid(X, Y, beta=3.0, lmbda=3.0)
+    assert np.max(np.linalg.norm(exact.points - X, axis=1)) < 1e-4
+    low = register_nonrigid(X, Y, lowrank=True)
+    assert low.rank < Y.shape[0]
+    assert np.max(np.linalg.norm(low.points - X, axis=1)) < 1e-3
+    fgt = register_nonrigid(X, Y, fgt=True)
+    assert np.max(np.linalg.norm(fgt.points - exact.points, axis=1)) < 1e-4
+    # a similarity or affine map cannot explain this deformation
+    assert np.max(np.linalg.norm(register_rigid(X, Y).points - X, axis=1)) > 0.01
+    assert np.max(np.linalg.norm(register_affine(X, Y).points - X, axis=1)) > 0.01
+
+
+def test_nonrigid_field_transform_matches_points_and_moves_new_points_coherently() -> None:
+    X, Y = _disk_and_deformation()
+    res = register_nonrigid(X, Y)
+    np.testing.assert_allclose(res.transform(Y), res.points, atol=1e-9)
+    # a point near a template point moves like it
+    z = Y[:1] + 1e-4
+    moved = res.transform(z)
+    assert np.linalg.norm((moved - z) - (res.points[:1] - Y[:1])) < 1e-3
+
+
+def test_gauss_transform_matches_direct_sum_within_eps() -> None:
+    rng = np.random.default_rng(1)
+    S = rng.uniform(0, 1, (1500, 2))
+    T = rng.uniform(0, 1, (1000, 2))
+    q = rng.uniform(0, 1, (1500, 2))
+    h = 2.0
+    g = gauss_transform(S, T, q, h, eps=1e-6)
+    assert g is not None
+    d2 = np.sum((T[:, None, :] - S[None, :, :]) ** 2, axis=2)
+    ref = np.exp(-d2 / h**2) @ q
+    assert np.max(np.abs(g - ref)) <= 1e-6 * q.sum(axis=0).max()
+
+
+def test_gauss_transform_declines_when_direct_is_cheaper() -> None:
+    rng = np.random.default_rng(2)
+    S = rng.uniform(0, 1, (50, 2))
+    assert gauss_transform(S, S, np.ones((50, 1)), 0.01) is None
+
+
+@pytest.mark.parametrize("fn", [register_rigid, register_affine, register_nonrigid])
+def test_malformed_input_raises_value_error(fn) -> None:
+    Y = np.zeros((10, 2)) + np.arange(10)[:, None] * 0.01
+    with pytest.raises(ValueError, match="X"):
+        fn(np.zeros((0, 2)), Y)
+    with pytest.raises(ValueError, match="Y"):
+        fn(Y, np.zeros((10, 3)))
+    bad = Y.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        fn(Y, bad)
+    with pytest.raises(ValueError, match="w"):
+        fn(Y, Y, w=1.0)

@@ -1,0 +1,168 @@
+"""Skill-CPD state machine on a scripted drop; network model; demonstrations."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pourbench.teleop import (
+    DT_S,
+    DeadlineDetector,
+    NetworkModel,
+    Outage,
+    SkillCPD,
+    SkillCPDConfig,
+    SkillLibrary,
+    closest_step,
+    delta_sample,
+    feeding_demos,
+    letter_demos,
+    task_outage,
+)
+
+
+@pytest.fixture(scope="module")
+def library() -> SkillLibrary:
+    return SkillLibrary(0.006).fit({L: [d.points for d in letter_demos(L, 10)] for L in "ACLS"})
+
+
+def _replay(lib, human, outage, **kw):
+    net = NetworkModel([outage], DT_S)
+    sa = SkillCPD(lib, SkillCPDConfig(**kw))
+    robot, states, alphas = [], [], []
+    for k in range(human.shape[0]):
+        t = k * DT_S
+        robot.append(sa.step(t, human[k] if net.delivered(t) else None))
+        states.append(sa.state)
+        alphas.append(sa.alpha)
+    return sa, np.array(robot), states, np.array(alphas)
+
+
+def _human(shift=(0.10, 0.0)) -> np.ndarray:
+    return letter_demos("C", 1, start=10)[0].points + np.array(shift)
+
+
+def test_scripted_drop_direct_skill_handback_direct(library: SkillLibrary) -> None:
+    human = _human()
+    k_drop, k_back = 300, 300 + 45  # 1.5 s outage from t = 9.9 s
+    outage = Outage(k_drop * DT_S - 1e-6, (k_back - k_drop) * DT_S)
+    sa, robot, states, alphas = _replay(library, human, outage)
+    # direct until the drop; the first missed packet is within the 50 ms deadline (hold),
+    # the second one is past it and triggers the switch
+    assert all(s == "direct" for s in states[:k_drop])
+    np.testing.assert_allclose(robot[:k_drop], human[:k_drop])
+    assert states[k_drop] == "direct" and np.allclose(robot[k_drop], robot[k_drop - 1])
+    assert states[k_drop + 1] == "skill"
+    assert all(s == "skill" for s in states[k_drop + 1 : k_back])
+    assert [(a, b) for _, a, b in sa.transitions] == [
+        ("direct", "skill"),
+        ("skill", "handback"),
+        ("handback", "direct"),
+    ]
+    reg = sa.registrations[0]
+    assert reg.label == "C" and reg.confidence >= 0.9
+    assert reg.kind in ("rigid", "nonrigid")
+    # alpha ramps 0.1, 0.2, ..., 1.0 over the 10 packets after reconnection
+    np.testing.assert_allclose(alphas[k_back : k_back + 10], np.arange(1, 11) / 10, atol=1e-9)
+    assert states[k_back + 9] == "direct"
+    assert all(s == "direct" for s in states[k_back + 9 :])
+    np.testing.assert_allclose(robot[k_back + 9 :], human[k_back + 9 :])
+    # during the ramp the command blends the skill and the operator
+    a = alphas[k_back + 4]
+    skill_pt = (robot[k_back + 4] - a * human[k_back + 4]) / (1 - a)
+    assert np.min(np.linalg.norm(reg.trajectory - skill_pt, axis=1)) < 2e-3
+    # the robot keeps moving during the outage, and without a jump at the switch
+    moved = np.linalg.norm(robot[k_back - 1] - robot[k_drop])
+    assert moved > 0.5 * 1.5 * 0.04  # at least half the operator's ~5 cm/s mean speed
+    assert np.linalg.norm(robot[k_drop + 1] - robot[k_drop]) < 0.01
+
+
+def test_registration_beats_unregistered_skill_on_a_shifted_letter(library) -> None:
+    human = _human(shift=(0.10, 0.0))
+    outage = Outage(300 * DT_S - 1e-6, 1.5)
+    jumps = {}
+    for mode in ("standard", "skill_cpd"):
+        sa, robot, _, _ = _replay(library, human, outage, mode=mode)
+        assert sa.registrations, mode
+        jumps[mode] = np.linalg.norm(robot[301] - robot[300])
+    assert jumps["skill_cpd"] < 0.01
+    assert jumps["standard"] > 0.05  # the unregistered skill is 10 cm away
+
+
+def test_no_shared_autonomy_holds_then_jumps(library: SkillLibrary) -> None:
+    human = _human()
+    outage = Outage(300 * DT_S - 1e-6, 45 * DT_S)  # packets 300 .. 344 are lost
+    sa, robot, states, _ = _replay(library, human, outage, mode="none")
+    assert not sa.registrations
+    assert all(s == "hold" for s in states[301:345])
+    assert np.allclose(robot[300:345], robot[299])
+    np.testing.assert_allclose(robot[345:], human[345:])
+
+
+def test_low_confidence_never_switches(library: SkillLibrary) -> None:
+    human = _human()
+    outage = Outage(300 * DT_S - 1e-6, 1.0)
+    sa, _, states, _ = _replay(library, human, outage, min_confidence=1.01)
+    assert not sa.registrations and "skill" not in states
+
+
+def test_closest_step_window() -> None:
+    traj = np.c_[np.linspace(0, 1, 101), np.zeros(101)]
+    assert closest_step(np.array([0.5, 0.0]), traj, 50, 10) == 50
+    assert closest_step(np.array([0.9, 0.0]), traj, 50, 10) == 60  # clipped to the window
+    assert closest_step(np.array([0.0, 0.0]), traj, 100, 5) == 95
+
+
+def test_deadline_detector_and_network() -> None:
+    det = DeadlineDetector(0.050)
+    assert not det.disconnected(1.0)  # nothing received yet
+    det.packet(1.0)
+    assert not det.disconnected(1.033)
+    assert det.disconnected(1.066)
+    net = NetworkModel([Outage(2.0, 1.0)])
+    assert net.delivered(1.99) and not net.delivered(2.0) and not net.delivered(2.99)
+    assert net.delivered(3.0)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        o = task_outage(rng, 20.0)
+        assert 8.0 <= o.start <= 12.0 and 0.5 <= o.duration <= 5.0
+
+
+def test_demonstrations_are_deterministic_and_human_like() -> None:
+    a = letter_demos("Q", 3, seed=5)
+    b = letter_demos("Q", 3, seed=5)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x.points, y.points)
+    assert not np.allclose(a[0].points[:100], a[1].points[:100])
+    held = letter_demos("Q", 1, seed=5, start=2)[0]
+    np.testing.assert_array_equal(held.points, a[2].points)
+    n = [delta_sample(d.points, 0.006).shape[0] for d in letter_demos("M", 10)]
+    assert 140 <= np.mean(n) <= 180
+    durations = [d.t[-1] for d in letter_demos("M", 10)]
+    assert np.std(durations) > 0.1  # timing varies between demonstrations
+    f = feeding_demos("left", 2)
+    assert f[0].points.shape[1] == 3
+    assert 150 <= delta_sample(f[0].points, 0.01).shape[0] <= 250
+    s = delta_sample(a[0].points, 0.006)
+    assert np.all(np.linalg.norm(np.diff(s, axis=0), axis=1) >= 0.006)
+
+
+def test_malformed_input_raises_value_error(library: SkillLibrary) -> None:
+    sa = SkillCPD(library)
+    with pytest.raises(ValueError, match="no packet"):
+        sa.step(0.0, None)
+    sa.step(0.0, np.array([0.0, 0.0]))
+    with pytest.raises(ValueError, match="finite"):
+        sa.step(0.033, np.array([np.nan, 0.0]))
+    with pytest.raises(ValueError, match="dims"):
+        sa.step(0.066, np.array([0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="mode"):
+        SkillCPDConfig(mode="auto")
+    with pytest.raises(ValueError, match="letter"):
+        letter_demos("3")
+    with pytest.raises(ValueError, match="points"):
+        delta_sample(np.zeros((0, 2)), 0.006)
+    with pytest.raises(ValueError, match="NaN"):
+        library.recognize(np.array([[0.0, 0.0], [np.nan, 1.0]]))
+    with pytest.raises(ValueError, match="no demonstrations"):
+        SkillLibrary(0.006).fit({"A": []})
