@@ -25,15 +25,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run_demo(args: argparse.Namespace) -> int:
     from pourbench.fluids.record import FluidRecorder
-    from pourbench.fluids.scenarios import two_cup_scene, tilt_schedule
+    from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
     from pourbench.fluids.solver import SolverConfig
 
     scene = two_cup_scene(args.liquid, args.mass_g, config=SolverConfig(device=args.device))
     solver = scene.solver
     out = Path(args.out)
     rec = FluidRecorder(out, solver)
-    steps = int(round(args.seconds / solver.config.dt))
-    frame = max(1, int(round(1 / 30 / solver.config.dt)))  # record at 30 Hz
+    steps = round(args.seconds / solver.config.dt)
+    frame = max(1, round(1 / 30 / solver.config.dt))  # record at 30 Hz
     print(
         f"pouring {args.mass_g:g} g of {solver.liquids[0].name} "
         f"({solver.num_particles} particles) for {args.seconds:g} s",

@@ -107,6 +107,7 @@ def predict(
 @wp.kernel
 def build_neighbours(
     grid: wp.uint64,
+    p: wp.array(dtype=wp.vec3),
     p_grid: wp.array(dtype=wp.vec3),
     world: wp.array(dtype=wp.int32),
     h: float,
@@ -114,18 +115,28 @@ def build_neighbours(
     nbr: wp.array2d(dtype=wp.int32),
     nbr_count: wp.array(dtype=wp.int32),
 ):
+    """Neighbours within h, in ascending index order.
+
+    Distances use the un-offset positions and the list is sorted, so a world's lists (and
+    hence its floating-point sums) do not depend on which other worlds share the solver.
+    """
     i = wp.tid()
-    pi = p_grid[i]
+    pi = p[i]
     wi = world[i]
     h2 = h * h
     count = int(0)
     j = int(0)
-    query = wp.hash_grid_query(grid, pi, h)
+    query = wp.hash_grid_query(grid, p_grid[i], h)
     while wp.hash_grid_query_next(query, j):
-        r = pi - p_grid[j]
-        if wp.dot(r, r) < h2 and j != i and count < max_nb:
-            if world[j] == wi:
-                nbr[i, count] = j
+        if world[j] == wi and j != i and count < max_nb:
+            r = pi - p[j]
+            if wp.dot(r, r) < h2:
+                # insertion into the sorted prefix
+                k = count
+                while k > 0 and nbr[i, k - 1] > j:
+                    nbr[i, k] = nbr[i, k - 1]
+                    k -= 1
+                nbr[i, k] = j
                 count += 1
     nbr_count[i] = count
 
@@ -374,8 +385,13 @@ def project_colliders(
     dt: float,
     body_force: wp.array(dtype=wp.vec3),
     body_torque: wp.array(dtype=wp.vec3),
+    push: wp.array(dtype=float),
 ):
-    """In-iteration projection out of colliders (no friction); reactions summed per body."""
+    """In-iteration projection out of colliders; reactions summed per body.
+
+    The normal push-out distance is accumulated in ``push``: it is the normal impulse (times
+    dt/m) that Coulomb friction in :func:`collide` scales with.
+    """
     i = wp.tid()
     w = world[i]
     pi = p[i]
@@ -384,6 +400,7 @@ def project_colliders(
         q = wp.transform_point(wp.transform_inverse(tf), pi)
         s = collider_sdf(col_kind[c], col_params, col_start[c], col_count[c], col_mesh[c], q)
         if s[0] < radius:
+            push[i] = push[i] + (radius - s[0])
             n = wp.vec3(s[1], s[2], s[3])
             new_p = wp.transform_point(tf, q + n * (radius - s[0]))
             body = col_body[c]
@@ -419,6 +436,7 @@ def collide(
     adhesion_range: float,
     adhesion_gain: float,
     dt: float,
+    push: wp.array(dtype=float),
     contacts: wp.array(dtype=wp.int32),
     body_force: wp.array(dtype=wp.vec3),
     body_torque: wp.array(dtype=wp.vec3),
@@ -472,12 +490,13 @@ def collide(
             pen = radius - s[0]
             if pen > 0.0:
                 q = q + n * pen
+            if pen > -1.0e-6:
                 n_contacts += 1
             # friction on the motion relative to the collider (Macklin et al. 2014, Eq. 24)
             dx = q - a
             dt_tan = dx - n * wp.dot(dx, n)
             lt = wp.length(dt_tan)
-            grip = wp.max(pen, 0.0) + adhesion[w] * adhesion_range
+            grip = wp.max(pen, 0.0) + push[i] + adhesion[w] * adhesion_range
             if lt > 0.0:
                 if lt < static_friction[w] * grip:
                     q = q - dt_tan

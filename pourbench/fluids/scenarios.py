@@ -8,6 +8,7 @@ force/torque sensor) so the liquid core can be exercised without the robot model
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
@@ -82,7 +83,7 @@ class PourScene:
 
 
 def two_cup_scene(
-    liquid: str | LiquidProfile = "water",
+    liquid: str | LiquidProfile | Sequence[str | LiquidProfile] = "water",
     mass_g: float = 200.0,
     num_worlds: int = 1,
     config: SolverConfig | None = None,
@@ -90,8 +91,10 @@ def two_cup_scene(
     target: RevolvedShell | None = None,
     lift: float = 0.01,
     overlap: float = 0.04,
+    target_g: float = 0.0,
 ) -> PourScene:
-    """Build the scene and fill the source cup with ``mass_g`` of ``liquid`` in every world.
+    """Build the scene; fill the source cup with ``mass_g`` (and the target with ``target_g``)
+    grams of ``liquid`` in every world (or of ``liquid[w]`` in world ``w``).
 
     The source cup's pouring lip sits ``lift`` m above the target's rim and ``overlap`` m
     inside its mouth, so tilting about the lip pours into the target.
@@ -120,8 +123,15 @@ def two_cup_scene(
     coupling.add_geoms(["table"])
     src = coupling.add_container("source", source)
     tgt = coupling.add_container("target", target)
-    for w in range(num_worlds):
-        solver.fill(w, src[w], mass_g, liquid)
+    liquids = [liquid] * num_worlds if isinstance(liquid, str | LiquidProfile) else list(liquid)
+    if len(liquids) != num_worlds:
+        raise ValueError(f"{len(liquids)} liquids given for {num_worlds} worlds")
+    for w, liq in enumerate(liquids):
+        solver.set_liquid(w, liq)
+        if mass_g > 0:
+            solver.fill(w, src[w], mass_g)
+        if target_g > 0:
+            solver.fill(w, tgt[w], target_g)
     home = np.array([0.0, 0.0, sz])
     lip = np.array([lip_x, 0.0, sz + source.rim_height])
     return PourScene(solver, coupling, model, datas, source, target, src, tgt, home, lip, tare)

@@ -170,6 +170,10 @@ class PBFSolver:
         self.config = config or SolverConfig()
         self.device = wp.get_device(self.config.device)
         self.w0, self.grad_c, sum_grad2 = _rest_sums(self.config)
+        n = math.ceil(self.config.smoothing)
+        g = np.arange(-n, n + 1) * self.config.spacing
+        lat = np.linalg.norm(np.stack(np.meshgrid(g, g, g), -1).reshape(-1, 3), axis=1)
+        self.lattice_neighbours = int(np.count_nonzero((lat > 0) & (lat < self.config.h)))
         self.coh_norm, self.curv_norm = _surface_norms(self.config, self.grad_c)
         self.eps = self.config.relaxation * sum_grad2
         # λ carries units of m² here (C is dimensionless, ∇C is 1/m), so the dimensionless
@@ -332,6 +336,7 @@ class PBFSolver:
         for name in ("x_prev", "p", "p_grid", "delta", "omega", "normal", "v_tmp"):
             setattr(self, name, wp.zeros(n, dtype=wp.vec3, device=dev))
         self.lam = wp.zeros(n, dtype=float, device=dev)
+        self.push = wp.zeros(n, dtype=float, device=dev)
         self.density = wp.zeros(n, dtype=float, device=dev)
         self.contacts = wp.zeros(n, dtype=wp.int32, device=dev)
         self.nbr = wp.zeros((n, cfg.max_neighbours), dtype=wp.int32, device=dev)
@@ -437,6 +442,7 @@ class PBFSolver:
         cfg, dev, n = self.config, self.device, self.n
         self.body_force.zero_()
         self.body_torque.zero_()
+        self.push.zero_()
         if n == 0:
             self._advance_clock()
             return
@@ -460,7 +466,7 @@ class PBFSolver:
         wp.launch(
             K.build_neighbours,
             n,
-            inputs=[self.grid.id, self.p_grid, self.world, cfg.h, cfg.max_neighbours],
+            inputs=[self.grid.id, self.p, self.p_grid, self.world, cfg.h, cfg.max_neighbours],
             outputs=[self.nbr, self.nbr_count],
             device=dev,
         )
@@ -514,7 +520,7 @@ class PBFSolver:
                     cfg.radius,
                     cfg.dt,
                 ],
-                outputs=[self.body_force, self.body_torque],
+                outputs=[self.body_force, self.body_torque, self.push],
                 device=dev,
             )
         wp.launch(
@@ -537,7 +543,7 @@ class PBFSolver:
                 cfg.adhesion_gain,
                 cfg.dt,
             ],
-            outputs=[self.contacts, self.body_force, self.body_torque],
+            outputs=[self.push, self.contacts, self.body_force, self.body_torque],
             device=dev,
         )
         wp.launch(
@@ -625,7 +631,26 @@ class PBFSolver:
         return self.density.numpy() if not self._dirty else np.ones(len(self._x))
 
     def neighbour_counts(self) -> np.ndarray:
-        return self.nbr_count.numpy()
+        """Neighbours (within h) of every particle at the last step."""
+        return self.nbr_count.numpy() if not self._dirty else np.zeros(len(self._x), np.int32)
+
+    def density_error(self, world: int | None = None) -> float:
+        """Mean |ρ/ρ0 − 1| over bulk particles (≥ 90 % of a lattice particle's neighbours).
+
+        Free-surface and wall particles have deficient neighbourhoods by construction and are
+        left out; the bulk is where the density constraint must hold.
+        """
+        rho, nc = self.densities(), self.neighbour_counts()
+        full = self.lattice_neighbours
+        mask = nc >= 0.9 * full
+        if world is not None:
+            sl = self.world_slice(world)
+            sel = np.zeros(len(mask), bool)
+            sel[sl] = True
+            mask &= sel
+        if not mask.any():
+            return float("nan")
+        return float(np.mean(np.abs(rho[mask] - 1.0)))
 
     def body_wrenches(self) -> tuple[np.ndarray, np.ndarray]:
         """Liquid's reaction force (N) and torque (N·m, about each body's CoM) per slot."""
