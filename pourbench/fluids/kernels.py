@@ -6,7 +6,7 @@ live here. Every kernel runs unchanged on ``device="cpu"`` and ``device="cuda"``
 Conventions: ``h`` is the smoothing radius (2 × particle spacing), ``w0`` the kernel sum of a
 particle in a full cubic lattice (the rest "density" in kernel units), so the density
 constraint is ``C_i = Σ_j W_ij / w0 − 1``. Particles of different worlds never interact:
-the neighbour search runs on positions offset per world and rejects other worlds explicitly.
+the spatial hash includes the world, and candidates of other worlds are rejected.
 Per-world liquid parameters are arrays indexed by ``world[i]``.
 """
 
@@ -82,62 +82,113 @@ def predict(
     damping: wp.array(dtype=float),
     gravity: wp.vec3,
     dt: float,
-    world_offset: float,
     x_prev: wp.array(dtype=wp.vec3),
     p: wp.array(dtype=wp.vec3),
-    p_grid: wp.array(dtype=wp.vec3),
 ):
     i = wp.tid()
     w = world[i]
     vi = (v[i] + gravity * dt) * (1.0 / (1.0 + damping[w] * dt))
     v[i] = vi
     x_prev[i] = x[i]
-    pi = x[i] + vi * dt
-    p[i] = pi
-    # worlds sit on a 16 × 16 × n layout, ``world_offset`` apart, in the hash grid only
-    ox = float(w % 16)
-    oy = float((w / 16) % 16)
-    oz = float(w / 256)
-    p_grid[i] = pi + wp.vec3(ox, oy, oz) * world_offset
+    p[i] = x[i] + vi * dt
 
 
 # ------------------------------------------------------------------ step 2: neighbour lists
+# A spatial hash of (world, cell) → bucket, filled by a stable radix sort of the bucket keys,
+# so each bucket lists its particles in ascending index order. Queries compare the exact
+# integer cell and world of every candidate, which removes hash collisions and duplicates:
+# a world's neighbour lists (and its floating-point sums) are the same whatever other worlds
+# share the solver, without offsets or sorting.
+
+
+@wp.func
+def cell_of(p: wp.vec3, inv_cell: float) -> wp.vec3i:
+    return wp.vec3i(
+        int(wp.floor(p[0] * inv_cell)),
+        int(wp.floor(p[1] * inv_cell)),
+        int(wp.floor(p[2] * inv_cell)),
+    )
+
+
+@wp.func
+def bucket_of(w: int, c: wp.vec3i, mask: int) -> int:
+    h = (c[0] * 73856093) ^ (c[1] * 19349663) ^ (c[2] * 83492791) ^ (w * 1640531527)
+    return h & mask
+
+
+@wp.kernel
+def hash_particles(
+    p: wp.array(dtype=wp.vec3),
+    world: wp.array(dtype=wp.int32),
+    inv_cell: float,
+    mask: int,
+    cell: wp.array(dtype=wp.vec3i),
+    keys: wp.array(dtype=wp.int32),
+    values: wp.array(dtype=wp.int32),
+):
+    i = wp.tid()
+    c = cell_of(p[i], inv_cell)
+    cell[i] = c
+    keys[i] = bucket_of(world[i], c, mask)
+    values[i] = i
+
+
+@wp.kernel
+def bucket_ranges(
+    keys: wp.array(dtype=wp.int32),
+    sorted_idx: wp.array(dtype=wp.int32),
+    p: wp.array(dtype=wp.vec3),
+    n: int,
+    start: wp.array(dtype=wp.int32),
+    end: wp.array(dtype=wp.int32),
+    p_sorted: wp.array(dtype=wp.vec3),
+):
+    """Bucket start/end in the sorted order, and positions copied into that order."""
+    k = wp.tid()
+    p_sorted[k] = p[sorted_idx[k]]
+    b = keys[k]
+    if k == 0 or keys[k - 1] != b:
+        start[b] = k
+    if k == n - 1 or keys[k + 1] != b:
+        end[b] = k + 1
 
 
 @wp.kernel
 def build_neighbours(
-    grid: wp.uint64,
     p: wp.array(dtype=wp.vec3),
-    p_grid: wp.array(dtype=wp.vec3),
     world: wp.array(dtype=wp.int32),
+    cell: wp.array(dtype=wp.vec3i),
+    sorted_idx: wp.array(dtype=wp.int32),
+    p_sorted: wp.array(dtype=wp.vec3),
+    start: wp.array(dtype=wp.int32),
+    end: wp.array(dtype=wp.int32),
+    mask: int,
     h: float,
     max_nb: int,
     nbr: wp.array2d(dtype=wp.int32),
     nbr_count: wp.array(dtype=wp.int32),
 ):
-    """Neighbours within h, in ascending index order.
-
-    Distances use the un-offset positions and the list is sorted, so a world's lists (and
-    hence its floating-point sums) do not depend on which other worlds share the solver.
-    """
+    """Neighbours within h of every particle, in a fixed (cell, index) order."""
     i = wp.tid()
     pi = p[i]
     wi = world[i]
+    ci = cell[i]
     h2 = h * h
     count = int(0)
-    j = int(0)
-    query = wp.hash_grid_query(grid, p_grid[i], h)
-    while wp.hash_grid_query_next(query, j):
-        if world[j] == wi and j != i and count < max_nb:
-            r = pi - p[j]
-            if wp.dot(r, r) < h2:
-                # insertion into the sorted prefix
-                k = count
-                while k > 0 and nbr[i, k - 1] > j:
-                    nbr[i, k] = nbr[i, k - 1]
-                    k -= 1
-                nbr[i, k] = j
-                count += 1
+    for dz in range(-1, 2):
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                c = wp.vec3i(ci[0] + dx, ci[1] + dy, ci[2] + dz)
+                b = bucket_of(wi, c, mask)
+                for k in range(start[b], end[b]):
+                    r = pi - p_sorted[k]
+                    if wp.dot(r, r) < h2:
+                        j = sorted_idx[k]
+                        cj = cell[j]
+                        same_cell = cj[0] == c[0] and cj[1] == c[1] and cj[2] == c[2]
+                        if same_cell and world[j] == wi and j != i and count < max_nb:
+                            nbr[i, count] = j
+                            count += 1
     nbr_count[i] = count
 
 

@@ -4,7 +4,8 @@ One :class:`PBFSolver` holds ``num_worlds`` independent worlds. Particles of dif
 worlds never interact; each world has its own liquid, colliders and collider poses; one
 kernel launch per stage advances every world. A step is Macklin & Müller's PBF loop:
 
-predict (gravity, damping) → neighbour lists (``wp.HashGrid``) → ``iterations`` Jacobi
+predict (gravity, damping) → neighbour lists (spatial hash of (world, cell), radix-sorted) →
+``iterations`` Jacobi
 density iterations (λ with constraint-force mixing, Δp with the s_corr tensile term,
 projection out of colliders) → swept collision with friction and adhesion (reaction summed
 per body) → velocity update (dissipation) → vorticity confinement, XSPH viscosity, cohesion,
@@ -333,7 +334,7 @@ class PBFSolver:
         self.x = f(self._x)
         self.v = f(self._v)
         self.world = wp.array(self._world, dtype=wp.int32, device=dev)
-        for name in ("x_prev", "p", "p_grid", "delta", "omega", "normal", "v_tmp"):
+        for name in ("x_prev", "p", "p_sorted", "delta", "omega", "normal", "v_tmp"):
             setattr(self, name, wp.zeros(n, dtype=wp.vec3, device=dev))
         self.lam = wp.zeros(n, dtype=float, device=dev)
         self.push = wp.zeros(n, dtype=float, device=dev)
@@ -393,10 +394,14 @@ class PBFSolver:
         nb = max(self.num_body_slots, 1)
         self.body_force = wp.zeros(nb, dtype=wp.vec3, device=dev)
         self.body_torque = wp.zeros(nb, dtype=wp.vec3, device=dev)
-        # worlds on a 3-D layout far apart, so their cells rarely share hash buckets
-        self.world_offset = 8.0
-        dims = int(np.clip(2 ** math.ceil(math.log2(max(n, 1) ** (1 / 3) * 2.0 + 1)), 32, 256))
-        self.grid = wp.HashGrid(dims, dims, dims, device=dev)
+        # spatial hash: buckets = next power of two ≥ 2n; sort buffers need 2n entries
+        buckets = 1 << max(10, math.ceil(math.log2(max(2 * n, 1))))
+        self.bucket_mask = buckets - 1
+        self.bucket_start = wp.zeros(buckets, dtype=wp.int32, device=dev)
+        self.bucket_end = wp.zeros(buckets, dtype=wp.int32, device=dev)
+        self.keys = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
+        self.sorted_idx = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
+        self.cell = wp.zeros(max(n, 1), dtype=wp.vec3i, device=dev)
         self._upload_poses(prev_too=True)
         self._dirty = False
 
@@ -457,19 +462,11 @@ class PBFSolver:
                 P["damping"],
                 wp.vec3(*cfg.gravity),
                 cfg.dt,
-                self.world_offset,
             ],
-            outputs=[self.x_prev, self.p, self.p_grid],
+            outputs=[self.x_prev, self.p],
             device=dev,
         )
-        self.grid.build(self.p_grid, cfg.h)
-        wp.launch(
-            K.build_neighbours,
-            n,
-            inputs=[self.grid.id, self.p, self.p_grid, self.world, cfg.h, cfg.max_neighbours],
-            outputs=[self.nbr, self.nbr_count],
-            device=dev,
-        )
+        self._build_neighbours()
         col_args = [
             self.world,
             self.world_col_start,
@@ -593,6 +590,46 @@ class PBFSolver:
         # next step's start-of-step collider poses are this step's end poses
         self.col_pose_prev = self.col_pose
         self._advance_clock()
+
+    def _build_neighbours(self) -> None:
+        """Hash particles by (world, cell), sort the buckets, and list neighbours within h."""
+        cfg, dev, n = self.config, self.device, self.n
+        inv_cell = 1.0 / cfg.h
+        wp.launch(
+            K.hash_particles,
+            n,
+            inputs=[self.p, self.world, inv_cell, self.bucket_mask],
+            outputs=[self.cell, self.keys, self.sorted_idx],
+            device=dev,
+        )
+        wp.utils.radix_sort_pairs(self.keys, self.sorted_idx, n)
+        self.bucket_start.zero_()
+        self.bucket_end.zero_()
+        wp.launch(
+            K.bucket_ranges,
+            n,
+            inputs=[self.keys, self.sorted_idx, self.p, n],
+            outputs=[self.bucket_start, self.bucket_end, self.p_sorted],
+            device=dev,
+        )
+        wp.launch(
+            K.build_neighbours,
+            n,
+            inputs=[
+                self.p,
+                self.world,
+                self.cell,
+                self.sorted_idx,
+                self.p_sorted,
+                self.bucket_start,
+                self.bucket_end,
+                self.bucket_mask,
+                cfg.h,
+                cfg.max_neighbours,
+            ],
+            outputs=[self.nbr, self.nbr_count],
+            device=dev,
+        )
 
     def _advance_clock(self) -> None:
         self.time += self.config.dt
