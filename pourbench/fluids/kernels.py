@@ -692,3 +692,17 @@ def velocity_filters(
 def swap_velocity(src: wp.array(dtype=wp.vec3), dst: wp.array(dtype=wp.vec3)):
     i = wp.tid()
     dst[i] = src[i]
+
+
+@wp.kernel
+def query_sdf(
+    kind: int,
+    params: wp.array(dtype=float),
+    count: int,
+    mesh: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    out: wp.array(dtype=wp.vec4),
+):
+    """Signed distance and normal of one collider at local points (for checks and tools)."""
+    i = wp.tid()
+    out[i] = collider_sdf(kind, params, 0, count, mesh, points[i])

@@ -698,6 +698,27 @@ class PBFSolver:
         t = self.body_torque.numpy()[: self.num_body_slots]
         return f.astype(float), t.astype(float)
 
+    def collider_sdf(self, collider: int, local_points: np.ndarray) -> np.ndarray:
+        """The solver's own signed distance (m) and outward normal of a collider, (n, 4).
+
+        Evaluated by the same Warp function the collision kernels use, at points given in
+        the collider's local frame.
+        """
+        c = self.colliders[collider]
+        pts = wp.array(
+            np.asarray(local_points, np.float32).reshape(-1, 3), dtype=wp.vec3, device=self.device
+        )
+        out = wp.zeros(len(pts), dtype=wp.vec4, device=self.device)
+        params = wp.array(c.params, dtype=float, device=self.device)
+        mesh = c.mesh.id if c.mesh is not None else 0
+        wp.launch(
+            K.query_sdf,
+            len(pts),
+            inputs=[c.kind, params, len(c.params), mesh, pts, out],
+            device=self.device,
+        )
+        return out.numpy().astype(float)
+
     def diverged(self) -> np.ndarray:
         """Per-world flag: NaN state, runaway speed, or particles far from the origin."""
         out = np.zeros(self.num_worlds, bool)
