@@ -1,5 +1,26 @@
 """Liquids: a position-based-fluids solver in NVIDIA Warp, two-way coupled to MuJoCo."""
 
+from pourbench.fluids.coupling import MujocoCoupling
+from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics
 from pourbench.fluids.params import LiquidProfile, liquid_names, liquid_profile, load_liquids
+from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell, bottle, bowl, cup, tray
+from pourbench.fluids.solver import PBFSolver, SolverConfig
 
-__all__ = ["LiquidProfile", "liquid_names", "liquid_profile", "load_liquids"]
+__all__ = [
+    "BoxShell",
+    "ContainerShape",
+    "LiquidMetrics",
+    "LiquidProfile",
+    "MujocoCoupling",
+    "PBFSolver",
+    "RevolvedShell",
+    "SolverConfig",
+    "bottle",
+    "bowl",
+    "cup",
+    "liquid_metrics",
+    "liquid_names",
+    "liquid_profile",
+    "load_liquids",
+    "tray",
+]

@@ -278,6 +278,14 @@ class PBFSolver:
         self._world = np.insert(self._world, idx, np.full(len(pos), world, np.int32))
         self._dirty = True
 
+    def clear_world(self, world: int) -> None:
+        """Remove every particle of ``world`` (e.g. before refilling it on an episode reset)."""
+        self._check_world(world)
+        self._sync_from_device()
+        keep = self._world != world
+        self._x, self._v, self._world = self._x[keep], self._v[keep], self._world[keep]
+        self._dirty = True
+
     def fill(
         self,
         world: int,
