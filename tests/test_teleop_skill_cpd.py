@@ -166,3 +166,15 @@ def test_malformed_input_raises_value_error(library: SkillLibrary) -> None:
         library.recognize(np.array([[0.0, 0.0], [np.nan, 1.0]]))
     with pytest.raises(ValueError, match="no demonstrations"):
         SkillLibrary(0.006).fit({"A": []})
+
+
+def test_invariant_recognition_handles_rotated_and_scaled_operators(library) -> None:
+    for L in "ACLS":
+        raw = letter_demos(L, 1, start=10)[0].points
+        c = 0.5 * (raw.min(axis=0) + raw.max(axis=0))
+        a = np.deg2rad(30.0)
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        for pts in ((raw - c) @ R.T + c, (raw - c) * 1.3 + c):
+            s = delta_sample(pts, 0.006)
+            rec = library.recognize(s[: int(0.45 * s.shape[0])], invariant=True)
+            assert rec.label == L and rec.confidence > 0.9

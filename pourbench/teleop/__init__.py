@@ -26,7 +26,9 @@ from pourbench.teleop.cpd import (
 )
 from pourbench.teleop.demos import (
     DT_S,
+    FEEDING_DURATION_S,
     FEEDING_TARGETS,
+    LETTER_DURATION_S,
     LETTERS,
     Demo,
     delta_sample,
@@ -55,9 +57,11 @@ from pourbench.teleop.skills import Recognition, Skill, SkillLibrary
 
 __all__ = [
     "DT_S",
+    "FEEDING_DURATION_S",
     "FEEDING_TARGETS",
     "HSMM",
     "LETTERS",
+    "LETTER_DURATION_S",
     "MODES",
     "AffineResult",
     "DeadlineDetector",

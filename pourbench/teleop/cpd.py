@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from math import factorial, prod
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve, eigh, svd
+from scipy.linalg import cho_factor, cho_solve, eigh
 
 from pourbench.errors import InvalidParameterError, check_finite
 
@@ -79,21 +79,25 @@ class _Estep:
     used_fgt: bool
 
 
-def _sqdist(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """(len(A), len(B)) squared Euclidean distances."""
-    d2 = np.sum(A**2, axis=1)[:, None] + np.sum(B**2, axis=1)[None, :] - 2.0 * A @ B.T
-    return np.maximum(d2, 0.0)
+def _sqdist(A: np.ndarray, B: np.ndarray, b2: np.ndarray | None = None) -> np.ndarray:
+    """(len(A), len(B)) squared Euclidean distances (``b2``: precomputed row norms of B)."""
+    if b2 is None:
+        b2 = np.einsum("ij,ij->i", B, B)
+    d2 = np.einsum("ij,ij->i", A, A)[:, None] + b2[None, :] - 2.0 * (A @ B.T)
+    return np.maximum(d2, 0.0, out=d2)
 
 
-def _estep_direct(X: np.ndarray, TY: np.ndarray, s2: float, w: float) -> _Estep:
+def _estep_direct(
+    X: np.ndarray, TY: np.ndarray, s2: float, w: float, x2: np.ndarray | None = None
+) -> _Estep:
     N, D = X.shape
     M = TY.shape[0]
-    d2 = _sqdist(TY, X)  # (M, N)
-    K = np.exp(-d2 / (2.0 * s2))
+    d2 = _sqdist(TY, X, x2)  # (M, N)
+    K = np.exp(d2 * (-0.5 / s2), out=d2)
     c = (2.0 * np.pi * s2) ** (D / 2.0) * w / (1.0 - w) * M / N
     den = K.sum(axis=0) + c
-    den = np.where(den <= 0.0, np.finfo(float).tiny, den)
-    P = K / den
+    den = np.maximum(den, np.finfo(float).tiny)
+    P = np.divide(K, den, out=K)
     P1 = P.sum(axis=1)
     Pt1 = P.sum(axis=0)
     return _Estep(P1, Pt1, P @ X, float(P1.sum()), False)
@@ -353,21 +357,23 @@ def register_rigid(
     floor = _S2_FLOOR * max(float(np.var(X, axis=0).sum()), 1e-300)
     R, t, s = np.eye(D), np.zeros(D), 1.0
     TY = Y.copy()
+    x2 = np.einsum("ij,ij->i", X, X)
+    y2 = np.einsum("ij,ij->i", Y, Y)
+    Cm = np.eye(D)
     it = 0
     for it in range(1, max_iter + 1):  # noqa: B007
-        e = _estep_direct(X, TY, s2, w)
+        e = _estep_direct(X, TY, s2, w, x2)
         if e.Np <= 0.0:
             break
         mux = X.T @ e.Pt1 / e.Np
         muy = Y.T @ e.P1 / e.Np
         A = e.PX.T @ Y - e.Np * np.outer(mux, muy)  # = Xhat^T P^T Yhat
-        U, _, Vt = svd(A)
-        Cm = np.eye(D)
-        Cm[-1, -1] = np.sign(np.linalg.det(U @ Vt)) or 1.0
+        U, _, Vt = np.linalg.svd(A)
+        Cm[-1, -1] = 1.0 if np.linalg.det(U @ Vt) >= 0.0 else -1.0
         R = U @ Cm @ Vt
-        trAR = float(np.trace(A.T @ R))
-        yy = float(np.sum(e.P1 * np.sum(Y**2, axis=1)) - e.Np * muy @ muy)
-        xx = float(np.sum(e.Pt1 * np.sum(X**2, axis=1)) - e.Np * mux @ mux)
+        trAR = float(np.sum(A * R))
+        yy = float(e.P1 @ y2 - e.Np * muy @ muy)
+        xx = float(e.Pt1 @ x2 - e.Np * mux @ mux)
         s = trAR / yy if scale else 1.0
         t = mux - s * R @ muy
         new = (xx - s * trAR) / (e.Np * D) if scale else (xx - 2 * trAR + yy) / (e.Np * D)
@@ -390,9 +396,10 @@ def register_affine(
     floor = _S2_FLOOR * max(float(np.var(X, axis=0).sum()), 1e-300)
     B, t = np.eye(D), np.zeros(D)
     TY = Y.copy()
+    x2 = np.einsum("ij,ij->i", X, X)
     it = 0
     for it in range(1, max_iter + 1):  # noqa: B007
-        e = _estep_direct(X, TY, s2, w)
+        e = _estep_direct(X, TY, s2, w, x2)
         if e.Np <= 0.0:
             break
         mux = X.T @ e.Pt1 / e.Np
@@ -478,10 +485,11 @@ def register_nonrigid(
     floor = _S2_FLOOR * max(float(np.var(Xn, axis=0).sum()), 1e-300)
     W = np.zeros((M, D))
     TY = Yn.copy()
+    x2 = np.einsum("ij,ij->i", Xn, Xn)
     it = 0
     nfgt = 0
     for it in range(1, max_iter + 1):  # noqa: B007
-        e = _estep_fgt(Xn, TY, s2, w, fgt_eps) if fgt else _estep_direct(Xn, TY, s2, w)
+        e = _estep_fgt(Xn, TY, s2, w, fgt_eps) if fgt else _estep_direct(Xn, TY, s2, w, x2)
         nfgt += int(e.used_fgt)
         if e.Np <= 0.0:
             break
@@ -501,7 +509,7 @@ def register_nonrigid(
                 W = np.linalg.solve(Amat, rhs / P1[:, None])
             GW = G @ W
         TY = Yn + GW
-        xPx = float(e.Pt1 @ np.sum(Xn**2, axis=1))
+        xPx = float(e.Pt1 @ x2)
         trPXT = float(np.sum(e.PX * TY))
         trTPT = float(e.P1 @ np.sum(TY**2, axis=1))
         new = max((xPx - 2.0 * trPXT + trTPT) / (e.Np * D), floor)

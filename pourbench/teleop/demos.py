@@ -35,6 +35,7 @@ from pourbench.errors import InvalidParameterError, UnknownNameError
 
 __all__ = [
     "DT_S",
+    "FEEDING_DURATION_S",
     "FEEDING_LENGTH_M",
     "FEEDING_TARGETS",
     "LETTERS",

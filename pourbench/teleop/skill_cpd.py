@@ -62,6 +62,8 @@ class SkillCPDConfig:
         lmbda: non-rigid regularisation weight.
         fgt: use the Fast Gauss Transform in non-rigid CPD.
         lowrank: use the low-rank kernel in non-rigid CPD.
+        invariant_recognition: recognise after aligning the operator's trajectory to each
+            skill with rigid CPD (see :meth:`SkillLibrary.recognize`); off in the thesis.
         cpd_tol: CPD stops when sigma^2 changes by less than this fraction per iteration.
         cpd_max_iter: CPD iteration cap (rigid and non-rigid each).
     """
@@ -79,6 +81,7 @@ class SkillCPDConfig:
     lmbda: float = 3.0
     fgt: bool = False
     lowrank: bool = True
+    invariant_recognition: bool = False
     cpd_tol: float = 1e-4
     cpd_max_iter: int = 100
 
@@ -107,6 +110,8 @@ class Registration:
         seconds: wall time of the registration and closest-step search (one core).
         recognition_seconds: wall time of the recognition.
         trajectory: (M, D) the registered skill ``xi_c``, m.
+        nonrigid_template: (K, D) the template handed to non-rigid CPD (the rigidly
+            registered prefix), or ``None`` when non-rigid CPD was not run.
     """
 
     label: str
@@ -117,6 +122,7 @@ class Registration:
     seconds: float
     recognition_seconds: float
     trajectory: np.ndarray = field(repr=False)
+    nonrigid_template: np.ndarray | None = field(default=None, repr=False)
 
 
 def closest_step(point: np.ndarray, traj: np.ndarray, centre: int, window: int) -> int:
@@ -130,9 +136,15 @@ def closest_step(point: np.ndarray, traj: np.ndarray, centre: int, window: int) 
 
 
 def _mean_nn_distance(A: np.ndarray, B: np.ndarray) -> float:
-    """Mean over points of A of the distance to the nearest point of B."""
-    d2 = np.sum(A**2, axis=1)[:, None] + np.sum(B**2, axis=1)[None, :] - 2.0 * A @ B.T
-    return float(np.mean(np.sqrt(np.maximum(d2.min(axis=1), 0.0))))
+    """Mean over points of A of the distance to the polyline B (nearest segment), m."""
+    if B.shape[0] == 1:
+        return float(np.mean(np.linalg.norm(A - B[0], axis=1)))
+    p0, seg = B[:-1], np.diff(B, axis=0)  # (S, D)
+    L2 = np.maximum(np.einsum("sd,sd->s", seg, seg), 1e-300)
+    rel = A[:, None, :] - p0[None, :, :]  # (N, S, D)
+    u = np.clip(np.einsum("nsd,sd->ns", rel, seg) / L2, 0.0, 1.0)
+    d = np.linalg.norm(rel - u[:, :, None] * seg[None, :, :], axis=2)
+    return float(np.mean(d.min(axis=1)))
 
 
 class SkillCPD:
@@ -189,7 +201,7 @@ class SkillCPD:
             return False
         X = np.array(self.history)
         t0 = time.perf_counter()
-        rec = self.library.recognize(X)
+        rec = self.library.recognize(X, invariant=cfg.invariant_recognition)
         t1 = time.perf_counter()
         if rec.confidence < cfg.min_confidence:
             return False
@@ -197,6 +209,7 @@ class SkillCPD:
         # rough disconnection index: skill steps and operator samples are both ~Δd apart
         i0 = min(X.shape[0] - 1, xi_a.shape[0] - 1)
         robot = self.position if self.position is not None else X[-1]
+        template = None
         if cfg.mode == "standard":
             xi_c, kind, err = xi_a, "none", _mean_nn_distance(X, xi_a)
         else:
@@ -209,9 +222,10 @@ class SkillCPD:
             err = _mean_nn_distance(X, xi_c)
             kind = "rigid"
             if err >= cfg.rigid_error:
+                template = xi_c[: min(i0 + cfg.window, xi_a.shape[0] - 1) + 1]
                 nr = register_nonrigid(
                     X,
-                    xi_c[: min(i0 + cfg.window, xi_a.shape[0] - 1) + 1],
+                    template,
                     beta=cfg.beta,
                     lmbda=cfg.lmbda,
                     w=cfg.cpd_w,
@@ -230,7 +244,9 @@ class SkillCPD:
         self._cum = np.concatenate([[0.0], np.cumsum(seg)])
         self._s = float(self._cum[step])
         self.registrations.append(
-            Registration(rec.label, rec.confidence, kind, err, step, t2 - t1, t1 - t0, xi_c)
+            Registration(
+                rec.label, rec.confidence, kind, err, step, t2 - t1, t1 - t0, xi_c, template
+            )
         )
         return True
 

@@ -7,7 +7,10 @@ tracking the HSMM's step-wise Gaussians (activation-weighted means, covariance o
 active state), shifted to the demonstrations' mean start point. As the HSMM is learnt from
 Δd-sampled demonstrations, one step of the skill corresponds to one Δd sample of the operator.
 Recognition compares the partial forward likelihoods of all skills; the confidence is the
-posterior of the best skill under a uniform prior.
+posterior of the best skill under a uniform prior. Optionally (``invariant=True``, our
+addition) each skill first aligns the operator's trajectory to itself with rigid CPD, so a
+rotated or scaled operator is still recognised. Results are cached per trajectory, so the
+same partial trajectory asked twice costs nothing the second time.
 """
 
 from __future__ import annotations
@@ -18,8 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from pourbench.errors import InvalidParameterError, UnknownNameError
+from pourbench.teleop.cpd import register_rigid
 from pourbench.teleop.demos import delta_sample
-from pourbench.teleop.hsmm import HSMM, trajectory_features
+from pourbench.teleop.hsmm import HSMM, Progress, trajectory_features
 from pourbench.teleop.lqt import lqt_track
 
 __all__ = ["Recognition", "Skill", "SkillLibrary"]
@@ -86,6 +90,7 @@ class SkillLibrary:
         self.lqt_r = float(lqt_r)
         self.reg = float(reg)
         self.skills: dict[str, Skill] = {}
+        self._cache: dict[tuple[object, ...], Recognition] = {}
 
     @property
     def labels(self) -> list[str]:
@@ -116,6 +121,7 @@ class SkillLibrary:
             mean_path = mu[:, :D] + origin
             traj = rep.positions + origin
             self.skills[str(label)] = Skill(str(label), model, origin, mean_path, traj)
+        self._cache.clear()
         return self
 
     def skill(self, label: str) -> Skill:
@@ -124,20 +130,65 @@ class SkillLibrary:
             raise UnknownNameError("skill", label, self.skills)
         return self.skills[label]
 
-    def recognize(self, points: np.ndarray) -> Recognition:
-        """Recognise a partial, Δd-sampled trajectory (n >= 2, metres)."""
+    def recognize(
+        self,
+        points: np.ndarray,
+        *,
+        invariant: bool = False,
+        max_rotation_deg: float = 45.0,
+        max_scale: float = 1.5,
+    ) -> Recognition:
+        """Recognise a partial, Δd-sampled trajectory (n >= 2, metres).
+
+        Args:
+            points: (n, D) operator trajectory so far.
+            invariant: first align the trajectory to each skill with rigid CPD (rotation,
+                scale, translation; template = the skill's first ``n + 10`` steps, n = number
+                of operator samples) and score the aligned trajectory, so that a rotated or
+                scaled operator is still recognised. Alignments rotating by more than
+                ``max_rotation_deg`` or scaling by more than ``max_scale`` (or less than its
+                inverse) are rejected.
+            max_rotation_deg: largest accepted rotation, degrees.
+            max_scale: largest accepted scale factor.
+        """
         if not self.skills:
             raise InvalidParameterError("the skill library is empty: call fit() first")
-        f = trajectory_features(points)
-        prog = {k: s.model.partial(f) for k, s in self.skills.items()}
+        pts = np.asarray(points, dtype=float)
+        key = (pts.tobytes(), pts.shape, invariant, max_rotation_deg, max_scale)
+        if key in self._cache:
+            return self._cache[key]
+        f = trajectory_features(pts)
+        if invariant:
+            prog = {}
+            for k, sk in self.skills.items():
+                m = min(sk.trajectory.shape[0], pts.shape[0] + 10)
+                rig = register_rigid(pts, sk.trajectory[:m], w=0.1, tol=1e-3, max_iter=60)
+                ang = np.degrees(
+                    np.arccos(np.clip((np.trace(rig.R) - (pts.shape[1] - 2)) / 2, -1, 1))
+                )
+                ok = ang <= max_rotation_deg and 1.0 / max_scale <= rig.s <= max_scale
+                aligned = (pts - rig.t) @ rig.R / rig.s
+                p = sk.model.partial(trajectory_features(aligned))
+                prog[k] = p if ok else Progress(-np.inf, p.state, p.fraction, p.step)
+        else:
+            prog = {k: sk.model.partial(f) for k, sk in self.skills.items()}
         names = list(prog)
         ll = np.array([prog[k].loglik for k in names])
-        post = np.exp(ll - ll.max())
-        post /= post.sum()
-        best = int(np.argmax(ll))
-        return Recognition(
-            names[best],
-            float(post[best]),
-            prog[names[best]].fraction,
-            {k: float(v) for k, v in zip(names, ll, strict=True)},
-        )
+        if not np.any(np.isfinite(ll)):
+            out = Recognition(
+                names[0], 0.0, 0.0, {k: float(v) for k, v in zip(names, ll, strict=True)}
+            )
+        else:
+            post = np.exp(ll - ll.max())
+            post /= post.sum()
+            best = int(np.argmax(ll))
+            out = Recognition(
+                names[best],
+                float(post[best]),
+                prog[names[best]].fraction,
+                {k: float(v) for k, v in zip(names, ll, strict=True)},
+            )
+        if len(self._cache) > 64:
+            self._cache.clear()
+        self._cache[key] = out
+        return out
