@@ -136,11 +136,14 @@ def point_box_signed_distance(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Signed distance from points p (..., 3) to a box, its unit gradient and the box point.
 
+    ``center`` (..., 3), ``half`` (..., 3) and ``rotation`` (..., 3, 3, box → world) broadcast
+    against ``p``, so many boxes can be handled at once.
+
     Returns:
         (sd, normal, surface point): sd (...) in m, negative inside; normal (..., 3) the unit
         gradient of sd with respect to p (world frame); the closest point on the box surface.
     """
-    local = (p - center) @ rotation  # world → box frame
+    local = np.einsum("...i,...ij->...j", p - center, rotation)  # world → box frame
     q = np.abs(local) - half
     outside = np.maximum(q, 0.0)
     out_norm = np.sqrt(np.einsum("...i,...i->...", outside, outside))
@@ -153,7 +156,8 @@ def point_box_signed_distance(
     is_out = (out_norm > 0.0)[..., None]
     n_local = np.where(is_out, n_out, n_in)
     surface_local = np.where(is_out, np.clip(local, -half, half), local - n_local * sd[..., None])
-    return sd, n_local @ rotation.T, surface_local @ rotation.T + center
+    to_world = lambda v: np.einsum("...ij,...j->...i", rotation, v)  # noqa: E731
+    return sd, to_world(n_local), to_world(surface_local) + center
 
 
 def _box_sd_only(local: np.ndarray, half: np.ndarray) -> np.ndarray:
@@ -162,7 +166,9 @@ def _box_sd_only(local: np.ndarray, half: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("...i,...i->...", outside, outside)) + np.minimum(q.max(-1), 0.0)
 
 
-def segment_box_closest_t(a: np.ndarray, b: np.ndarray, box: Box) -> np.ndarray:
+def segment_box_closest_t(
+    a: np.ndarray, b: np.ndarray, center: np.ndarray, half: np.ndarray, rotation: np.ndarray
+) -> np.ndarray:
     """Segment parameter t ∈ [0, 1] minimising the signed point-box distance along [a, b].
 
     Exact: the signed distance is convex along the segment; outside the box its square is
@@ -174,14 +180,16 @@ def segment_box_closest_t(a: np.ndarray, b: np.ndarray, box: Box) -> np.ndarray:
     Args:
         a: segment start points, (..., 3) in m.
         b: segment end points, (..., 3) in m.
-        box: the box.
+        center: box centres, (..., 3) in m (broadcast against ``a``).
+        half: box half extents, (..., 3) in m.
+        rotation: box → world rotations, (..., 3, 3).
 
     Returns:
         (...) parameters t.
     """
-    h = box.half_extents
-    al = (a - box.center) @ box.rotation  # box frame
-    dl = (b - a) @ box.rotation
+    al = np.einsum("...i,...ij->...j", a - center, rotation)  # box frame
+    dl = np.einsum("...i,...ij->...j", b - a, rotation)
+    h = np.broadcast_to(half, al.shape)
     safe_d = np.where(np.abs(dl) > 1e-12, dl, 1e-12)
     bp = np.concatenate([(h - al) / safe_d, (-h - al) / safe_d], axis=-1)  # (..., 6)
     bp = np.clip(np.nan_to_num(bp, nan=0.0), 0.0, 1.0)
@@ -192,23 +200,32 @@ def segment_box_closest_t(a: np.ndarray, b: np.ndarray, box: Box) -> np.ndarray:
     mid = 0.5 * (lo + hi)
     pm = al[..., None, :] + mid[..., None] * dl[..., None, :]  # (..., 7, 3)
     sgn = np.where(pm >= 0.0, 1.0, -1.0)
-    act = np.abs(pm) > h
+    h7 = h[..., None, :]
+    act = np.abs(pm) > h7
     dd = dl[..., None, :]
-    num = np.where(act, dd * (al[..., None, :] - sgn * h), 0.0).sum(-1)
+    num = np.where(act, dd * (al[..., None, :] - sgn * h7), 0.0).sum(-1)
     den = np.where(act, dd * dd, 0.0).sum(-1)
     tq = np.clip(-num / np.maximum(den, 1e-18), lo, hi)  # (..., 7)
-    # Crossings of the six linear functions σ(a_i + t d_i) − h_i (inside the box).
-    slope = np.concatenate([dl, -dl], axis=-1)
-    icpt = np.concatenate([al - h, -al - h], axis=-1)
-    iu, ju = np.triu_indices(6, k=1)
-    dm = slope[..., iu] - slope[..., ju]
-    tx = (icpt[..., ju] - icpt[..., iu]) / np.where(np.abs(dm) > 1e-12, dm, 1e-12)
-    tx = np.clip(np.nan_to_num(tx, nan=0.0), 0.0, 1.0)  # (..., 15)
-    cand = np.concatenate([knots, tq, tx], axis=-1)  # (..., 30)
+    cand = np.concatenate([knots, tq], axis=-1)  # (..., 15)
     pts = al[..., None, :] + cand[..., None] * dl[..., None, :]
-    vals = _box_sd_only(pts, h)
+    vals = _box_sd_only(pts, h[..., None, :])
     best = np.argmin(vals, axis=-1)
-    return np.take_along_axis(cand, best[..., None], -1)[..., 0]
+    t_best = np.take_along_axis(cand, best[..., None], -1)[..., 0]
+    inside = np.take_along_axis(vals, best[..., None], -1)[..., 0] <= 1e-9  # touches or enters
+    if np.any(inside):
+        # Penetrating segments: the minimiser may be a crossing of two of the six linear
+        # functions σ(a_i + t d_i) − h_i that make up the distance inside the box.
+        ai, di, hi_ = al[inside], dl[inside], h[inside]
+        slope = np.concatenate([di, -di], axis=-1)
+        icpt = np.concatenate([ai - hi_, -ai - hi_], axis=-1)
+        iu, ju = np.triu_indices(6, k=1)
+        dm = slope[..., iu] - slope[..., ju]
+        tx = (icpt[..., ju] - icpt[..., iu]) / np.where(np.abs(dm) > 1e-12, dm, 1e-12)
+        tx = np.clip(np.nan_to_num(tx, nan=0.0), 0.0, 1.0)
+        c2 = np.concatenate([cand[inside], tx], axis=-1)
+        v2 = _box_sd_only(ai[:, None, :] + c2[..., None] * di[:, None, :], hi_[:, None, :])
+        t_best[inside] = np.take_along_axis(c2, np.argmin(v2, axis=-1)[:, None], -1)[:, 0]
+    return t_best
 
 
 @dataclass(frozen=True)
@@ -228,11 +245,13 @@ class DistanceResult:
     point_obstacle: np.ndarray
 
 
-def _finish(pa: np.ndarray, po: np.ndarray, ra: np.ndarray, ro: float, fallback: np.ndarray):
+def _finish(pa: np.ndarray, po: np.ndarray, ra: np.ndarray, ro: np.ndarray):
+    """Sphere-swept distance between points pa (robot axis) and po (obstacle core)."""
     diff = pa - po
     dist = np.sqrt(np.einsum("...i,...i->...", diff, diff))
+    fallback = np.array([0.0, 0.0, 1.0])
     normal = np.where((dist > 1e-9)[..., None], diff / np.maximum(dist, 1e-9)[..., None], fallback)
-    return dist - ra - ro, normal, po + ro * normal
+    return dist - ra - ro, normal, po + ro[..., None] * normal
 
 
 def capsule_obstacle_distances(
@@ -243,6 +262,8 @@ def capsule_obstacle_distances(
     times: np.ndarray | None = None,
 ) -> DistanceResult:
     """Signed distances between capsules (..., K) and every obstacle (L of them).
+
+    Obstacles of one kind are handled together in one vectorised pass.
 
     Args:
         seg_a: capsule axis start points, (..., K, 3) in m.
@@ -257,45 +278,53 @@ def capsule_obstacle_distances(
     """
     seg_a = np.asarray(seg_a, dtype=float)
     seg_b = np.asarray(seg_b, dtype=float)
-    radius = np.broadcast_to(np.asarray(radius, dtype=float), seg_a.shape[:-1])
     lead = seg_a.shape[:-1]
+    rad = np.broadcast_to(np.asarray(radius, dtype=float), lead)[..., None]  # (..., K, 1)
     L = len(obstacles)
     sd = np.empty((*lead, L))
     normal = np.empty((*lead, L, 3))
     pr = np.empty((*lead, L, 3))
     po = np.empty((*lead, L, 3))
-    axis = seg_b - seg_a
-    fallback = np.zeros((*lead, 3))
-    fallback[..., 2] = 1.0
-    for j, ob0 in enumerate(obstacles):
+    for kind in (Sphere, Capsule, Box):
+        idx = [j for j, ob in enumerate(obstacles) if isinstance(ob, kind)]
+        if not idx:
+            continue
+        obs = [obstacles[j] for j in idx]
+        vel = np.array([ob.velocity for ob in obs])  # (X, 3)
         # A moving obstacle is handled in its own frame: shift the capsules by −v·t.
-        shift = None
-        if times is not None and np.any(ob0.velocity != 0.0):
-            shift = np.asarray(times, dtype=float)[..., None, None] * ob0.velocity
-        sa = seg_a if shift is None else seg_a - shift
-        sb = seg_b if shift is None else seg_b - shift
-        ob = ob0
-        if isinstance(ob, Sphere):
-            t = closest_t_point(sa, sb, ob.center)
+        if times is not None and np.any(vel != 0.0):
+            shift = np.asarray(times, dtype=float)[..., None, None, None] * vel
+        else:
+            shift = np.zeros((len(obs), 3))
+        sa = seg_a[..., None, :] - shift  # (..., K, X, 3)
+        sb = seg_b[..., None, :] - shift
+        axis = sb - sa
+        if kind is Sphere:
+            c = np.array([ob.center for ob in obs])
+            t = closest_t_point(sa, sb, c)
             p = sa + t[..., None] * axis
-            s, nrm, q = _finish(p, np.broadcast_to(ob.center, p.shape), radius, ob.radius, fallback)
-        elif isinstance(ob, Capsule):
-            s_, t_ = closest_st_segments(sa, sb, ob.a, ob.b)
+            r_ob = np.array([ob.radius for ob in obs])
+            s, nrm, q = _finish(p, np.broadcast_to(c, p.shape), rad, r_ob)
+        elif kind is Capsule:
+            A = np.array([ob.a for ob in obs])
+            B = np.array([ob.b for ob in obs])
+            s_, t_ = closest_st_segments(sa, sb, A, B)
             p = sa + s_[..., None] * axis
-            c = ob.a + t_[..., None] * (ob.b - ob.a)
-            s, nrm, q = _finish(p, c, radius, ob.radius, fallback)
-        elif isinstance(ob, Box):
-            t = segment_box_closest_t(sa, sb, ob)
+            c = A + t_[..., None] * (B - A)
+            r_ob = np.array([ob.radius for ob in obs])
+            s, nrm, q = _finish(p, c, rad, r_ob)
+        else:
+            ctr = np.array([ob.center for ob in obs])
+            half = np.array([ob.half_extents for ob in obs])
+            rot = np.array([ob.rotation for ob in obs])
+            t = segment_box_closest_t(sa, sb, ctr, half, rot)
             p = sa + t[..., None] * axis
-            sbox, nrm, q = point_box_signed_distance(p, ob.center, ob.half_extents, ob.rotation)
-            s = sbox - radius
-        else:  # pragma: no cover - guarded by the type
-            raise InvalidParameterError(f"unsupported obstacle {ob!r}")
-        sd[..., j] = s
-        normal[..., j, :] = nrm
-        back = 0.0 if shift is None else shift
-        pr[..., j, :] = p + back
-        po[..., j, :] = q + back
+            sbox, nrm, q = point_box_signed_distance(p, ctr, half, rot)
+            s = sbox - rad
+        sd[..., idx] = s
+        normal[..., idx, :] = nrm
+        pr[..., idx, :] = p + shift
+        po[..., idx, :] = q + shift
     return DistanceResult(sd=sd, normal=normal, point_robot=pr, point_obstacle=po)
 
 

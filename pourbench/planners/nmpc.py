@@ -352,11 +352,15 @@ class NMPCPlanner:
         qi = np.tile(q0[self.lim], self.config.ph) + self.A_lin @ U
         return np.tile(hi, self.config.ph) - qi, qi - np.tile(lo, self.config.ph)
 
-    def _evaluate(self, prob: _Problem, U: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> _Eval:
+    def _evaluate(
+        self, prob: _Problem, U: np.ndarray, lo: np.ndarray, hi: np.ndarray, grad: bool = True
+    ) -> _Eval:
+        """f, sd and the linear slacks at U; with ``grad`` also ∇f, the residual Jacobian and
+        ∂sd/∂U (line-search trials skip them)."""
         c, n = self.config, self.n
         Uc = U.reshape(c.ch, n)
         Q = prob.q0[None, :] + self.config.ts * self.M @ Uc  # (ph+1, n)
-        st = self.kin.forward_many(Q[1:])
+        st = self.kin.forward_many(Q[1:], jacobians=grad)
         # --- cost residuals
         quat = st.ee_quat
         sign = np.where(quat @ prob.goal_quat >= 0.0, 1.0, -1.0)
@@ -364,22 +368,30 @@ class NMPCPlanner:
         e = np.empty((c.ph, 6))
         e[:, :3] = prob.goal_pos - st.ee_pos
         e[:, 3:] = quat @ prob.Pi.T
-        Jq = quat_jacobian(quat, st.jac_rot)  # linear in ξ, so already for the signed ξ
-        de = np.empty((c.ph, 6, n))
-        de[:, :3] = -st.jac_pos
-        de[:, 3:] = prob.Pi @ Jq
         r_track = (self.w * e).reshape(-1)
-        E = self.w[:, :, None] * de
-        J_track = np.einsum("ij,ian->iajn", self.TsM, E).reshape(6 * c.ph, self.nU)
         r = np.concatenate([r_track, self.sqrt_rbar * U])
-        Jr = np.vstack([J_track, np.diag(self.sqrt_rbar)])
         f = float(r @ r)
-        grad = 2.0 * Jr.T @ r
+        if grad:
+            Jq = quat_jacobian(quat, st.jac_rot)  # linear in ξ, so already for the signed ξ
+            de = np.empty((c.ph, 6, n))
+            de[:, :3] = -st.jac_pos
+            de[:, 3:] = prob.Pi @ Jq
+            E = self.w[:, :, None] * de
+            J_track = np.einsum("ij,ian->iajn", self.TsM, E).reshape(6 * c.ph, self.nU)
+            Jr = np.vstack([J_track, np.diag(self.sqrt_rbar)])
+            gradf = 2.0 * Jr.T @ r
+        else:
+            Jr = np.zeros((0, self.nU))
+            gradf = np.zeros(0)
         # --- collision constraints
         if prob.obstacles and self.kin.num_capsules:
             dist = capsule_obstacle_distances(
                 st.seg_a, st.seg_b, st.radius, prob.obstacles, times=self.step_times
             )
+            sd = dist.sd.reshape(-1)
+        else:
+            sd = np.zeros(0)
+        if grad and sd.size:
             PJ = point_jacobian(
                 st.body_pos[:, :, None, :],
                 st.body_jacp[:, :, None],
@@ -388,16 +400,14 @@ class NMPCPlanner:
             )  # (ph, K, L, 3, n)
             G = np.einsum("tkla,tklan->tkln", dist.normal, PJ)
             dsd = np.einsum("tj,tkln->tkljn", self.TsM, G).reshape(-1, self.nU)
-            sd = dist.sd.reshape(-1)
         else:
-            sd = np.zeros(0)
             dsd = np.zeros((0, self.nU))
         up, low = self._lin_rhs(prob.q0, lo, hi, U)
         return _Eval(
             U=U,
             Q=Q,
             f=f,
-            grad=grad,
+            grad=gradf,
             Jr=Jr,
             r=r,
             ee_pos=np.vstack([prob.ee0[None, :], st.ee_pos]),
@@ -504,9 +514,9 @@ class NMPCPlanner:
             # Backtrack on the total violation.
             alpha = 1.0
             for _ in range(8):
-                trial = self._evaluate(prob, ev.U + alpha * d, lo, hi)
+                trial = self._evaluate(prob, ev.U + alpha * d, lo, hi, grad=False)
                 if self._violation(trial) < viol:
-                    ev = trial
+                    ev = self._evaluate(prob, trial.U, lo, hi)
                     break
                 alpha *= 0.5
             else:
@@ -563,9 +573,9 @@ class NMPCPlanner:
             alpha = 1.0
             new = None
             for _ in range(12):
-                trial = self._evaluate(prob, ev.U + alpha * d, lo, hi)
+                trial = self._evaluate(prob, ev.U + alpha * d, lo, hi, grad=False)
                 if self._merit(trial, mu) <= phi0 + 1e-4 * alpha * min(dphi, 0.0):
-                    new = trial
+                    new = self._evaluate(prob, trial.U, lo, hi)
                     break
                 alpha *= 0.5
             if new is None:
