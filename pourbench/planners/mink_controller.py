@@ -25,7 +25,8 @@ from pourbench.planners.world import PlanningWorld
 
 @dataclass
 class MinkResult:
-    """One mink control step: ``u`` (n,) rad/s, wall ``solve_time_s`` (s), ``iterations`` = 1."""
+    """One mink control step: ``u`` (n,) rad/s, wall ``solve_time_s`` (s), ``iterations`` (IK
+    solves)."""
 
     u: np.ndarray
     solve_time_s: float
@@ -46,6 +47,7 @@ class MinkController:
         orientation_cost: FrameTask orientation cost relative to position cost 1.
         posture_cost: PostureTask cost (regularises the null space).
         base_qpos: full configuration of the joints that are not planned.
+        substeps: IK steps per control period (each ``ts / substeps`` long).
     """
 
     def __init__(
@@ -61,10 +63,12 @@ class MinkController:
         orientation_cost: float = 0.5,
         posture_cost: float = 1e-3,
         base_qpos: np.ndarray | None = None,
+        substeps: int = 4,
     ) -> None:
         m = world.model
         self.world = world
         self.ts = ts
+        self.substeps = int(substeps)
         self.safety_distance = safety_distance
         self.config = mink.Configuration(m)
         jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in joints]
@@ -92,7 +96,7 @@ class MinkController:
                     m,
                     [(list(robot_geoms), obstacle_names)],
                     minimum_distance_from_collisions=safety_distance,
-                    collision_detection_distance=safety_distance + 0.15,
+                    collision_detection_distance=safety_distance + 0.3,
                 )
             )
 
@@ -102,6 +106,9 @@ class MinkController:
         return qpos
 
     def _velocity(self, q, goal_pos, goal_quat, dt: float, collisions: bool = True) -> np.ndarray:
+        # mink's Configuration owns its MjData: give it the world's obstacle (mocap) poses.
+        self.config.data.mocap_pos[:] = self.world.data.mocap_pos
+        self.config.data.mocap_quat[:] = self.world.data.mocap_quat
         self.config.update(self._qpos(q))
         target = mink.SE3.from_rotation_and_translation(
             mink.SO3(np.asarray(goal_quat, float) / np.linalg.norm(goal_quat)),
@@ -135,8 +142,14 @@ class MinkController:
         if not (np.all(np.isfinite(goal_pos)) and np.all(np.isfinite(goal_quat))):
             raise InvalidParameterError("goal must be finite")
         self.world.set_obstacles(obstacles)
-        u = self._velocity(np.asarray(q0, float), goal_pos, goal_quat, self.ts)
-        return MinkResult(u=u, solve_time_s=time.perf_counter() - t0)
+        # Differential IK is a fast-rate method: integrate ``substeps`` IK steps over the
+        # control period and return their mean velocity (so q + u·t_s is where they end).
+        q = np.asarray(q0, float).copy()
+        dt = self.ts / self.substeps
+        for _ in range(self.substeps):
+            q = q + self._velocity(q, goal_pos, goal_quat, dt) * dt
+        u = (q - np.asarray(q0, float)) / self.ts
+        return MinkResult(u=u, solve_time_s=time.perf_counter() - t0, iterations=self.substeps)
 
     def solve_ik(
         self,
