@@ -21,6 +21,14 @@ from pourbench.bench._report import markdown_table, write_report
 from pourbench.bench.fluids_baseline import BaselinePBF
 from pourbench.fluids.shapes import BoxShell
 from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.validation import (
+    MARTIN_MOYCE,
+    VISCOUS_ORDER,
+    dam_break_fronts,
+    half_pour_times,
+    rest_in_cup,
+    scale_reading,
+)
 
 TARGET_CPU_PPS = 1_000_000  # issue target at 16k particles on one core
 TARGET_CUDA_PPS = 1_000_000_000
@@ -107,11 +115,53 @@ COLUMNS = [
 ]
 
 
+def validation() -> tuple[dict[str, Any], str]:
+    """Run the physical validation experiments; their numbers and a markdown table."""
+    print("fluids: physical validation (rest, weight, viscous pours, dam break)…", file=sys.stderr)
+    rest = rest_in_cup()
+    w50, w200 = scale_reading(50.0), scale_reading(200.0)
+    t_half, left = half_pour_times()
+    fronts = dam_break_fronts()
+    out: dict[str, Any] = {
+        "rest_density_error": rest.density_error,
+        "rest_max_speed_m_s": rest.max_speed,
+        "rest_p99_speed_m_s": rest.p99_speed,
+        "rest_bulk_density_kg_m3": rest.bulk_density,
+        "scale_50g_reads_g": w50,
+        "scale_200g_reads_g": w200,
+        "half_pour_time_s": dict(zip(VISCOUS_ORDER, t_half.tolist(), strict=True)),
+        "residue_after_4s_g": dict(zip(VISCOUS_ORDER, left.tolist(), strict=True)),
+        "dam_break_Z": {str(k): v for k, v in fronts.items()},
+    }
+    lines = [
+        "| check | measured | expected |",
+        "|---|---|---|",
+        f"| rest (200 g water, 1 s): bulk density error | {rest.density_error:.4f} | ≤ 0.02 |",
+        f"| rest: max / p99 particle speed (m/s) | {rest.max_speed:.4f} / {rest.p99_speed:.4f}"
+        " | ≤ 0.02 (max) |",
+        f"| rest: density from fill height (kg/m³) | {rest.bulk_density:.0f} | 1000 |",
+        f"| force sensor, 50 g settled (g) | {w50:.2f} | 50 ± 1 |",
+        f"| force sensor, 200 g settled (g) | {w200:.2f} | 200 ± 4 |",
+    ]
+    for liq, t, g in zip(VISCOUS_ORDER, t_half, left, strict=True):
+        lines.append(
+            f"| {liq}: half-pour time (s) / left after 4 s (g) | {t:.3f} / {g:.1f} | "
+            "increasing with viscosity |"
+        )
+    for T, z in fronts.items():
+        lines.append(
+            f"| dam break Z at T = {T:g} | {z:.2f} | {MARTIN_MOYCE[T]:.2f} ± 15 % "
+            "(Martin & Moyce 1952) |"
+        )
+    return out, "\n".join(lines)
+
+
 def run(args: argparse.Namespace) -> int:
     rows = []
     for device, n, worlds in cases(args.quick):
         print(f"fluids: {device} {n} particles, {worlds} world(s)…", file=sys.stderr)
         rows.append(run_case(device, n, worlds))
+    checks, checks_md = ({}, "") if args.quick else validation()
     body = "\n".join(
         [
             "Dam-break block in a tank, 4 Jacobi density iterations, dt = 1/240 s, spacing "
@@ -124,12 +174,23 @@ def run(args: argparse.Namespace) -> int:
             "",
             f"Targets: ≥ {TARGET_CPU_PPS:,} particle-steps/s at 16k particles on one CPU core; "
             f"≥ {TARGET_CUDA_PPS:,} on CUDA at 1M+ particles. Warp runs CPU kernels on one core.",
+            "",
+            "## Physical checks" if checks_md else "",
+            "",
+            checks_md,
         ]
     )
     if not args.no_write:
-        write_report("fluids", rows, out=args.out, title="Fluid solver throughput", body_md=body)
+        write_report(
+            "fluids",
+            rows,
+            out=args.out,
+            title="Fluid solver: throughput and physical checks",
+            body_md=body,
+            extra={"validation": checks} if checks else None,
+        )
     if args.json:
-        print(json.dumps({"suite": "fluids", "rows": rows}))
+        print(json.dumps({"suite": "fluids", "rows": rows, "validation": checks}))
     else:
         print(markdown_table(rows, COLUMNS))
     return 0
