@@ -7,8 +7,9 @@ the end-effector, p0 / ξ0):
 * (ii) six far goals in sequence (0.3–0.5 m apart, rotated up to 0.3 rad), no obstacle.
 * (iii) a far goal (p0 + (0, −0.4, −0.1) m) behind a static box (centre p0 + (0.05, −0.2,
   0.02) m, half extents (0.10, 0.03, 0.10) m) that blocks the straight line.
-* (iv) a sphere (r = 5 cm, 0.1 m/s) crossing the path and passing through the goal at t = 5 s;
-  safety distance 5 cm; 20 s run.
+* (iv) a sphere (r = 5 cm) falling at 0.1 m/s through the goal (p0 + (0, −0.3, 0.15) m),
+  which it passes at t = 5 s, so it crosses the arm's path; safety distance 5 cm; 30 s run.
+  NMPC-MP is given the sphere's velocity and predicts it over the horizon.
 * (v) Movo only: both arms reach crossing goals (each to the other side), each arm the
   other's obstacle (its capsules at their current pose).
 
@@ -54,7 +55,8 @@ from pourbench.planners.world import PlanningWorld
 
 TS = 0.2  # control period (s)
 POS_TOL = 0.01  # success: final position error (m)
-ROT_TOL = 0.1  # success: final rotation error (rad)
+# Success: final rotation error (rad). The thesis counts |Δp|² = 8.6e-3 (≈ 0.19 rad) a success.
+ROT_TOL = 0.2
 JOG_POS_TOL = 0.003  # jogging tolerance (m)
 SAFETY = 0.03  # safety distance, tasks i–iii and v (m)
 SAFETY_DYNAMIC = 0.05  # task iv (thesis Fig. 4.9b)
@@ -156,14 +158,14 @@ def make_tasks(robot: str, quick: bool = False) -> list[Task]:
         (*ONLINE, "RRT-Connect"),
     )  # fmt: skip
     goal4 = p0 + np.array([0.0, -0.3, 0.15])
-    v = np.array([-0.1, 0.0, 0.0])  # m/s, from the front towards the robot
+    v = np.array([0.0, 0.0, -0.1])  # m/s, falling through the goal
     t_cross = 5.0
 
     def sphere(t: float) -> list[Obstacle]:
         return [Sphere(goal4 + v * (t - t_cross), 0.05, velocity=v)]
 
     t4 = Task("iv", robot, arm, [(goal4, x0)], sphere, SAFETY_DYNAMIC, ONLINE,
-              fixed_duration_steps=100)  # fmt: skip
+              fixed_duration_steps=150)  # fmt: skip
     tasks = [t1, t2, t3, t4]
     if robot == "movo":
         kl = arm_kinematics("movo_left")
@@ -422,7 +424,7 @@ TASK_TITLES = {
     "i": "Task (i): jogging, ph = ch = 1 (Table 4.3)",
     "ii": "Task (ii): six far goals, no obstacle (Table 4.4)",
     "iii": "Task (iii): far goal behind a static box (Table 4.5)",
-    "iv": "Task (iv): sphere crossing the path and the goal (safety 5 cm)",
+    "iv": "Task (iv): sphere falling through the path and the goal (safety 5 cm)",
     "v": "Task (v): both Movo arms, crossing goals, each arm the other's obstacle",
 }
 
