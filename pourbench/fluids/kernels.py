@@ -180,7 +180,10 @@ def build_neighbours(
             for dx in range(-1, 2):
                 c = wp.vec3i(ci[0] + dx, ci[1] + dy, ci[2] + dz)
                 b = bucket_of(wi, c, mask)
-                for k in range(start[b], end[b]):
+                # while-loops compile to tighter CPU code than range() loops in Warp
+                k = int(start[b])
+                k_end = end[b]
+                while k < k_end:
                     r = pi - p_sorted[k]
                     if wp.dot(r, r) < h2:
                         j = sorted_idx[k]
@@ -189,6 +192,7 @@ def build_neighbours(
                         if same_cell and world[j] == wi and j != i and count < max_nb:
                             nbr[i, count] = j
                             count += 1
+                    k += 1
     nbr_count[i] = count
 
 
@@ -207,19 +211,23 @@ def compute_lambda(
     lam: wp.array(dtype=float),
     density: wp.array(dtype=float),
 ):
+    """λ_i = −C_i / (Σ|∇C|² + ε) of the unilateral density constraint."""
     i = wp.tid()
     pi = p[i]
     rho = spiky(0.0, h)
     grad_i = wp.vec3(0.0)
     sum_grad2 = float(0.0)
-    for k in range(nbr_count[i]):
-        j = nbr[i, k]
-        r = pi - p[j]
+    # while-loops compile to tighter CPU code than range() loops in Warp
+    k = int(0)
+    k_end = nbr_count[i]
+    while k < k_end:
+        r = pi - p[nbr[i, k]]
         dist = wp.length(r)
         rho += spiky(dist, h)
         g = spiky_grad(r, dist, h, grad_c)
         grad_i += g
         sum_grad2 += wp.dot(g, g)
+        k += 1
     sum_grad2 += wp.dot(grad_i, grad_i)
     rho = rho / w0
     density[i] = rho
@@ -241,22 +249,25 @@ def compute_delta(
     sor: float,
     delta: wp.array(dtype=wp.vec3),
 ):
+    """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi)."""
     i = wp.tid()
     pi = p[i]
     li = lam[i]
     dp = wp.vec3(0.0)
-    for k in range(nbr_count[i]):
+    k = int(0)
+    k_end = nbr_count[i]
+    while k < k_end:
         j = nbr[i, k]
         r = pi - p[j]
         d2 = wp.dot(r, r)
         ratio = poly6(d2, h) / scorr_wdq
         s_corr = float(0.0)
-        lsum = li + lam[j]
         if scorr_n == 4.0:
             s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
         else:
             s_corr = -scorr_k * wp.pow(ratio, scorr_n)
-        dp += (lsum + s_corr) * spiky_grad(r, wp.sqrt(d2), h, grad_c)
+        dp += (li + lam[j] + s_corr) * spiky_grad(r, wp.sqrt(d2), h, grad_c)
+        k += 1
     delta[i] = dp * sor
 
 
@@ -607,12 +618,16 @@ def vorticity_and_normals(
     vi = v[i]
     om = wp.vec3(0.0)
     nn = wp.vec3(0.0)
-    for k in range(nbr_count[i]):
+    # while-loops compile to tighter CPU code than range() loops in Warp
+    k = int(0)
+    k_end = nbr_count[i]
+    while k < k_end:
         j = nbr[i, k]
         r = xi - x[j]
         g = spiky_grad(r, wp.length(r), h, grad_c)
         om += wp.cross(v[j] - vi, g)
         nn += g
+        k += 1
     omega[i] = om
     normal[i] = nn * h
 
@@ -657,7 +672,10 @@ def velocity_filters(
     coh = wp.vec3(0.0)
     curv = wp.vec3(0.0)
     fric = wp.vec3(0.0)
-    for k in range(nbr_count[i]):
+    # while-loops compile to tighter CPU code than range() loops in Warp
+    k = int(0)
+    k_end = nbr_count[i]
+    while k < k_end:
         j = nbr[i, k]
         r = xi - x[j]
         d = wp.length(r)
@@ -672,6 +690,7 @@ def velocity_filters(
                 dv_t = dv - (r / d) * wp.dot(dv, r / d)
                 fric += dv_t * (1.0 - d / spacing)
         curv -= normal[i] - normal[j]
+        k += 1
     dv = wp.vec3(0.0)
     if wsum > 0.0:
         # XSPH: relax toward the kernel-weighted neighbour mean by a = ν / (1 + ν) per step
