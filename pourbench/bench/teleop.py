@@ -29,7 +29,9 @@ Metrics (cm, the thesis' unit):
   without any jump still scores about Δd plus one packet's motion, reported as
   ``human_max_step_cm`` for the operator's own trajectory);
 * ``switch_jump_cm``: the largest per-packet (33 ms) motion of the robot from the drop to
-  the end of the hand-back, raw (no Δd sampling);
+  the end of the hand-back, raw (no Δd sampling); ``takeover_jump_cm`` (first 3 packets of
+  the outage) and ``handback_jump_cm`` (first packet back to the end of the alpha ramp)
+  split it;
 * ``rmse_cm``: RMS over all packet times of the distance between the robot and the
   operator's true (undelivered during the outage) position;
 * recognition accuracy at the switch, registration kind and wall time (one core).
@@ -175,15 +177,22 @@ def _run_one(
         t = k * DT_S
         robot[k] = sa.step(t, human[k] if outage_net.delivered(t) else None)
     err = np.linalg.norm(robot - human, axis=1)
-    # switch window: from the first missed packet to the end of the hand-back
+    step = np.concatenate([[0.0], np.linalg.norm(np.diff(robot, axis=0), axis=1)])
     lost = [k for k in range(human.shape[0]) if not outage_net.delivered(k * DT_S)]
-    k0 = lost[0] if lost else 0
-    k1 = min(human.shape[0] - 1, (lost[-1] if lost else 0) + round(1.0 / cfg.alpha_step) + 2)
-    steps = np.linalg.norm(np.diff(robot[max(k0 - 1, 0) : k1 + 1], axis=0), axis=1)
+    ramp = round(1.0 / cfg.alpha_step)
+    if lost:
+        k0, k1 = lost[0], lost[-1] + 1  # first missed packet, first packet back
+        take = float(step[k0 : min(k0 + 3, k1)].max())
+        back = float(step[k1 : k1 + ramp + 1].max()) if k1 < human.shape[0] else 0.0
+        window = float(step[k0 : k1 + ramp + 1].max())
+    else:
+        take = back = window = 0.0
     reg = sa.registrations[0] if sa.registrations else None
     return {
         "max_displacement_cm": 100.0 * _max_step(robot, cfg.delta_d),
-        "switch_jump_cm": 100.0 * float(steps.max()) if steps.size else 0.0,
+        "switch_jump_cm": 100.0 * window,
+        "takeover_jump_cm": 100.0 * take,
+        "handback_jump_cm": 100.0 * back,
         "rmse_cm": 100.0 * float(np.sqrt(np.mean(err**2))),
         "switched": reg is not None,
         "label": reg.label if reg else None,
@@ -191,10 +200,11 @@ def _run_one(
         "registration": reg.kind if reg else None,
         "registration_ms": 1e3 * reg.seconds if reg else None,
         "recognition_ms": 1e3 * reg.recognition_seconds if reg else None,
-        "n_operator_points": len(sa.history) if reg else None,
+        "n_operator_points": int(reg.operator_points.shape[0])
+        if reg is not None and reg.operator_points is not None
+        else None,
         "n_skill_points": int(reg.trajectory.shape[0]) if reg else None,
         "_reg": reg,
-        "_history": np.array(sa.history),
     }
 
 
@@ -273,8 +283,12 @@ def _summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                 "rmse_cm (thesis)": th[1],
                 "switch_jump_cm": float(np.mean([r["switch_jump_cm"] for r in rs])),
                 "human_max_step_cm": float(np.mean([r["human_max_step_cm"] for r in rs])),
+                "takeover_jump_cm": float(np.mean([r["takeover_jump_cm"] for r in rs])),
+                "handback_jump_cm": float(np.mean([r["handback_jump_cm"] for r in rs])),
                 "switched": float(np.mean([r["switched"] for r in rs])),
-                "recognised": float(np.mean([r["recognised"] for r in rs])),
+                "recognised": float(np.mean([r["recognised"] for r in rs]))
+                if rs[0]["recognised"] is not None
+                else None,
                 "nonrigid": float(np.mean([r["registration"] == "nonrigid" for r in rs])),
                 "reg_ms_median": float(np.median(regs)) if regs else None,
             }
@@ -311,6 +325,7 @@ def run(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(SEED)
     log = sys.stderr
     t_start = time.perf_counter()
+    load_start = os.getloadavg()[0]
     base = SkillCPDConfig()
     reps = 1 if quick else 3
     variations = (VARIATIONS_2D[1],) if quick else VARIATIONS_2D
@@ -357,10 +372,9 @@ def run(args: argparse.Namespace) -> int:
             )
             m = _run_one(lib, human, net, cfg)
             reg = m.pop("_reg")
-            hist = m.pop("_history")
             if method == "skill_cpd" and reg is not None and reg.nonrigid_template is not None:
                 if len(timing_cases) < (26 if quick else 60) and op == OPERATORS[0]:
-                    timing_cases.append((hist, reg.nonrigid_template))
+                    timing_cases.append((reg.operator_points, reg.nonrigid_template))
             rows.append(
                 {
                     "operator": op,
@@ -373,7 +387,7 @@ def run(args: argparse.Namespace) -> int:
                     "outage_start_s": outage.start,
                     "outage_s": outage.duration,
                     "human_max_step_cm": human_step,
-                    "recognised": m["label"] == label,
+                    "recognised": None if method == "none" else m["label"] == label,
                     **m,
                 }
             )
@@ -398,9 +412,11 @@ def run(args: argparse.Namespace) -> int:
         else "No switch happened."
     )
     elapsed = time.perf_counter() - t_start
+    load = f"load average {load_start:.2f} at the start, {os.getloadavg()[0]:.2f} at the end"
     cols = [
         "operator", "task", "class", "method", "runs", "max_disp_cm (ours)", "max_disp_cm (thesis)",
-        "rmse_cm (ours)", "rmse_cm (thesis)", "switch_jump_cm", "human_max_step_cm",
+        "rmse_cm (ours)", "rmse_cm (thesis)", "takeover_jump_cm", "handback_jump_cm",
+        "human_max_step_cm",
         "switched", "recognised", "nonrigid", "reg_ms_median",
     ]  # fmt: skip
     body = "\n".join(
@@ -411,7 +427,8 @@ def run(args: argparse.Namespace) -> int:
             "run. Protocol and metric definitions: `pourbench/bench/teleop.py` docstring.",
             "",
             f"Mode: {'quick' if quick else 'full'}; {len(jobs)} operator trajectories x "
-            f"{len(METHODS)} methods; seed {SEED}; wall time {elapsed:.0f} s.",
+            f"{len(METHODS)} methods; seed {SEED}; wall time {elapsed:.0f} s; {load} "
+            f"(the machine's 2 cores are shared, so wall-clock timings include contention).",
             "",
             markdown_table(summary, cols),
             "",
@@ -448,6 +465,7 @@ def run(args: argparse.Namespace) -> int:
             "max": float(regs.max()) if regs.size else None,
         },
         "cpu": pinned,
+        "load": load,
     }
     if not getattr(args, "no_write", False):
         paths = write_report(

@@ -112,6 +112,7 @@ class Registration:
         trajectory: (M, D) the registered skill ``xi_c``, m.
         nonrigid_template: (K, D) the template handed to non-rigid CPD (the rigidly
             registered prefix), or ``None`` when non-rigid CPD was not run.
+        operator_points: (N, D) the operator's Δd-sampled trajectory ``xi_h*`` at the switch.
     """
 
     label: str
@@ -123,6 +124,7 @@ class Registration:
     recognition_seconds: float
     trajectory: np.ndarray = field(repr=False)
     nonrigid_template: np.ndarray | None = field(default=None, repr=False)
+    operator_points: np.ndarray | None = field(default=None, repr=False)
 
 
 def closest_step(point: np.ndarray, traj: np.ndarray, centre: int, window: int) -> int:
@@ -245,7 +247,7 @@ class SkillCPD:
         self._s = float(self._cum[step])
         self.registrations.append(
             Registration(
-                rec.label, rec.confidence, kind, err, step, t2 - t1, t1 - t0, xi_c, template
+                rec.label, rec.confidence, kind, err, step, t2 - t1, t1 - t0, xi_c, template, X
             )
         )
         return True
