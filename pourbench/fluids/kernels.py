@@ -112,8 +112,14 @@ def cell_of(p: wp.vec3, inv_cell: float) -> wp.vec3i:
 
 @wp.func
 def bucket_of(w: int, c: wp.vec3i, mask: int) -> int:
-    h = (c[0] * 73856093) ^ (c[1] * 19349663) ^ (c[2] * 83492791) ^ (w * 1640531527)
-    return h & mask
+    # unsigned arithmetic: wrap-around is defined (signed overflow is not, in C++)
+    h = (
+        (wp.uint32(c[0]) * wp.uint32(73856093))
+        ^ (wp.uint32(c[1]) * wp.uint32(19349663))
+        ^ (wp.uint32(c[2]) * wp.uint32(83492791))
+        ^ (wp.uint32(w) * wp.uint32(1640531527))
+    )
+    return int(h & wp.uint32(mask))
 
 
 @wp.kernel
