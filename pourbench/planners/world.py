@@ -143,7 +143,9 @@ class PlanningWorld:
 
     def clearance(self, qpos: np.ndarray | None = None, distmax: float = 1.0) -> float:
         """Smallest signed distance (m) between the arm's geoms and every obstacle geom,
-        by ``mj_geomDistance``; ``distmax`` when nothing is closer."""
+        by ``mj_geomDistance``; ``distmax`` when nothing is closer, ``inf`` with no obstacle."""
+        if not self.obstacle_geoms or not self.robot_geom_ids:
+            return float("inf")
         if qpos is not None:
             self.data.qpos[:] = qpos
         mujoco.mj_kinematics(self.model, self.data)

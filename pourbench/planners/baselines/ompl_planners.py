@@ -68,6 +68,9 @@ def plan_ompl(
     q_goal = np.asarray(q_goal, float)
     lo = np.where(np.isfinite(kin.lower), kin.lower, np.minimum(q_start, q_goal) - span)
     hi = np.where(np.isfinite(kin.upper), kin.upper, np.maximum(q_start, q_goal) + span)
+    # IK and path ends may sit a hair outside a joint limit; OMPL rejects out-of-bounds states.
+    q_start = np.clip(q_start, lo, hi)
+    q_goal = np.clip(q_goal, lo, hi)
     space = ob.RealVectorStateSpace(n)
     bounds = ob.RealVectorBounds(n)
     for i in range(n):
