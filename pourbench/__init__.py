@@ -8,4 +8,26 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__"]
+
+def register_envs() -> None:
+    """Register the Gymnasium ids ``pourbench/...`` (the ``gymnasium.envs`` entry point).
+
+    Importing the environments is deferred to ``gymnasium.make``; registration only records
+    entry-point strings, so ``import pourbench`` stays light.
+    """
+    from gymnasium.envs.registration import register, registry
+
+    if "pourbench/Pour-v0" not in registry:
+        register(
+            id="pourbench/Pour-v0",
+            entry_point="pourbench.envs.pour:PourEnv",
+            vector_entry_point="pourbench.envs.vector:PourVectorEnv",
+        )
+
+
+try:  # register on import when Gymnasium is installed
+    register_envs()
+except ImportError:  # pragma: no cover - gymnasium is a core dependency
+    pass
+
+__all__ = ["__version__", "register_envs"]

@@ -1,0 +1,99 @@
+"""Closed-loop PD pouring baseline (in the spirit of Dong et al.'s controller, thesis
+Table 6.1): the tilt rate follows the error between a desired and the measured flow rate,
+where the desired flow shrinks with the remaining weight to pour.
+
+It reads only the environment's observation (the filtered scale weight, the target and the
+tilt) and acts through Algorithm 4 (``action_mode="thesis"``): translate at full speed until
+above the receiving container, then
+
+* flow estimate ``q`` (g/s): the measured weight's rate of change, low-passed;
+* predicted weight ``ŵ = w + q·lead`` (compensates the 1 Hz filter's delay);
+* desired flow ``q* = clip(gain·(target − ŵ), min_flow, max_flow)``;
+* ``ω = kp·(q* − q) − kd·dq/dt``, only forward while ``ŵ`` is below the target, full speed
+  back once it is reached (the handler itself forbids going back before the measured weight
+  reaches the target minus its tolerance, so the controller holds the tilt meanwhile).
+
+Works on batches: ``act(obs)`` takes (n, 12) or (12,) observations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+WEIGHT, TARGET, TILT = 7, 8, 11
+
+
+@dataclass(frozen=True)
+class PDConfig:
+    """Gains and limits (grams, seconds, radians, actions in [-1, 1]).
+
+    Attributes:
+        control_dt: environment step, s.
+        fast_tilt: tilt reached at full rate before searching for the flow onset, rad.
+        search_rate: tilt-rate action while searching for the onset and while pouring.
+        detect_g: measured weight that marks the onset, g (about 2σ of the filtered noise).
+        kp: tilt-rate action per g/s of flow error.
+        kd: tilt-rate action per g/s² of flow change.
+        gain: desired flow per gram still to pour, 1/s.
+        min_flow, max_flow: bounds of the desired flow, g/s.
+        lead: prediction horizon of the weight, s (filter delay plus stopping time).
+        flow_smoothing: weight of the newest flow sample in its running average.
+    """
+
+    control_dt: float = 0.1
+    fast_tilt: float = 0.6
+    search_rate: float = 0.15
+    detect_g: float = 5.0
+    kp: float = 0.01
+    kd: float = 0.001
+    gain: float = 0.5
+    min_flow: float = 5.0
+    max_flow: float = 30.0
+    lead: float = 0.4
+    flow_smoothing: float = 0.5
+
+
+class PDPourer:
+    """The PD baseline for a batch of ``num_envs`` worlds."""
+
+    def __init__(self, num_envs: int = 1, config: PDConfig | None = None) -> None:
+        self.config = config or PDConfig()
+        self.n = int(num_envs)
+        self.last_w = np.full(self.n, np.nan)
+        self.flow = np.zeros(self.n)
+        self.onset = np.zeros(self.n, bool)
+        self.done = np.zeros(self.n, bool)
+
+    def reset(self, mask: np.ndarray | None = None) -> None:
+        """Forget the history of every world (or of those in ``mask``)."""
+        m = np.ones(self.n, bool) if mask is None else np.asarray(mask, bool)
+        self.last_w[m] = np.nan
+        self.flow[m] = 0.0
+        self.onset[m] = False
+        self.done[m] = False
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Actions (n, 2) ``(ω, r)`` for observations (n, 12) (or (2,) for (12,))."""
+        o = np.asarray(obs, float)
+        single = o.ndim == 1
+        o = o.reshape(-1, 12)
+        c = self.config
+        w, target, tilt = o[:, WEIGHT], o[:, TARGET], o[:, TILT]
+        q_new = np.where(np.isnan(self.last_w), 0.0, (w - self.last_w) / c.control_dt)
+        q_old = self.flow
+        q = (1 - c.flow_smoothing) * q_old + c.flow_smoothing * q_new
+        dq = (q - q_old) / c.control_dt
+        self.last_w, self.flow = w.copy(), q
+        predicted = w + np.maximum(q, 0.0) * c.lead
+        self.onset |= w >= c.detect_g
+        self.done |= predicted >= target
+        q_star = np.clip(c.gain * (target - predicted), c.min_flow, c.max_flow)
+        pour = np.clip(c.kp * (q_star - q) - c.kd * dq, 0.0, c.search_rate)
+        omega = np.where(tilt < c.fast_tilt, 1.0, np.where(self.onset, pour, c.search_rate))
+        omega = np.where(self.done, -1.0, omega)
+        # translate toward the receiving container until the handler starts rotating
+        r = np.where((tilt <= 1e-6) & ~self.done, 1.0, 0.0)
+        a = np.stack([omega, r], axis=1).astype(np.float32)
+        return a[0] if single else a

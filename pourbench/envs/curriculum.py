@@ -1,0 +1,86 @@
+"""Curriculum of liquid-parameter ranges (thesis §6.5.6), read from a TOML file.
+
+A lesson is a set of uniform ranges for density (kg/m³) and FleX's adhesion, cohesion,
+surface tension and viscosity, plus the share of training steps it takes. The default file,
+``pourbench/assets/curriculum.toml``, holds the thesis' three lessons.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from pourbench.fluids import LiquidProfile, liquid_profile
+
+DEFAULT_CURRICULUM = Path(str(resources.files("pourbench") / "assets" / "curriculum.toml"))
+RANDOMISED: tuple[str, ...] = ("density", "adhesion", "cohesion", "surface_tension", "viscosity")
+
+
+@dataclass(frozen=True)
+class Lesson:
+    """One lesson: a uniform range ``(low, high)`` per randomised liquid parameter.
+
+    Attributes:
+        name: lesson name.
+        fraction: share of training steps spent in it.
+        ranges: parameter name -> (low, high); density in kg/m³, the others FleX coefficients.
+    """
+
+    name: str
+    fraction: float
+    ranges: dict[str, tuple[float, float]]
+
+    def sample(
+        self, rng: np.random.Generator, base: str | LiquidProfile = "water"
+    ) -> LiquidProfile:
+        """A liquid with every randomised parameter drawn uniformly from its range."""
+        values = {k: float(rng.uniform(*self.ranges[k])) for k in RANDOMISED}
+        return liquid_profile(base).replace(**values)
+
+
+def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
+    """Read lessons from a TOML file (``[[lesson]]`` tables; the shipped file by default).
+
+    Raises:
+        ValueError: a lesson lacks a range, a range is not ``[low, high]`` with low ≤ high, or
+            the fractions do not sum to 1.
+    """
+    path = Path(path) if path is not None else DEFAULT_CURRICULUM
+    with open(path, "rb") as f:
+        data = tomllib.load(f)
+    lessons = []
+    for i, entry in enumerate(data.get("lesson", [])):
+        ranges = {}
+        for key in RANDOMISED:
+            rng = entry.get(key)
+            if (
+                not isinstance(rng, list)
+                or len(rng) != 2
+                or not all(isinstance(v, int | float) for v in rng)
+                or rng[0] > rng[1]
+            ):
+                raise ValueError(f"{path}: lesson {i}: {key} must be [low, high], got {rng!r}")
+            ranges[key] = (float(rng[0]), float(rng[1]))
+        lessons.append(
+            Lesson(str(entry.get("name", f"lesson{i}")), float(entry["fraction"]), ranges)
+        )
+    if not lessons:
+        raise ValueError(f"{path}: no [[lesson]] tables")
+    total = sum(lesson.fraction for lesson in lessons)
+    if abs(total - 1.0) > 1e-6:
+        raise ValueError(f"{path}: lesson fractions sum to {total}, not 1")
+    return tuple(lessons)
+
+
+def lesson_at(progress: float, lessons: tuple[Lesson, ...]) -> int:
+    """Index of the lesson for a training progress in [0, 1] (fractions taken in order)."""
+    edge = 0.0
+    for k, lesson in enumerate(lessons):
+        edge += lesson.fraction
+        if progress < edge:
+            return k
+    return len(lessons) - 1

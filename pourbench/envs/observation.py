@@ -1,0 +1,63 @@
+"""The weight observation as on the robot: tared sensor force, noise, Butterworth low-pass.
+
+The receiving container's force sensor is sampled at ``rate_hz`` (100 Hz), Gaussian noise of
+standard deviation ``noise_n`` (the SensONE's 0.15 N resolution) is added, and each sample
+goes through a 2nd-order Butterworth low-pass (1 Hz cut-off) designed with
+:func:`scipy.signal.butter` and run with :func:`scipy.signal.sosfilt` per world.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import signal
+
+GRAVITY = 9.81
+
+
+class WeightFilter:
+    """Batched tared, noisy, low-passed weight (g) of ``num_worlds`` force sensors.
+
+    Args:
+        num_worlds: number of worlds.
+        rate_hz: sampling rate, Hz.
+        cutoff_hz: low-pass cut-off, Hz.
+        order: Butterworth order.
+        noise_n: noise standard deviation, N (0 disables it).
+    """
+
+    def __init__(
+        self,
+        num_worlds: int,
+        rate_hz: float = 100.0,
+        cutoff_hz: float = 1.0,
+        order: int = 2,
+        noise_n: float = 0.15,
+    ) -> None:
+        self.rate_hz, self.noise_n = float(rate_hz), float(noise_n)
+        self.sos = signal.butter(order, cutoff_hz, btype="low", fs=rate_hz, output="sos")
+        self.zi_unit = signal.sosfilt_zi(self.sos)  # steady state for a unit input
+        self.zi = np.zeros((self.sos.shape[0], num_worlds, 2))
+        self.tare_n = np.zeros(num_worlds)
+        self.value_g = np.zeros(num_worlds)
+
+    def reset(self, world: int, force_n: float) -> None:
+        """Tare world ``world`` at sensor reading ``force_n`` (N); the filter starts at 0 g."""
+        self.tare_n[world] = force_n
+        self.zi[:, world, :] = 0.0
+        self.value_g[world] = 0.0
+
+    def sample(self, worlds: np.ndarray, force_n: np.ndarray, noise: np.ndarray) -> None:
+        """Feed one sensor sample to each of ``worlds``.
+
+        Args:
+            worlds: (k,) world indices sampled now.
+            force_n: (k,) sensor readings (vertical force on the scale), N.
+            noise: (k,) standard-normal draws, scaled here by ``noise_n``.
+        """
+        if len(worlds) == 0:
+            return
+        grams = (force_n - self.tare_n[worlds] + self.noise_n * noise) / GRAVITY * 1e3
+        grams = np.where(np.isfinite(grams), grams, 0.0)
+        y, zf = signal.sosfilt(self.sos, grams[:, None], axis=1, zi=self.zi[:, worlds, :])
+        self.zi[:, worlds, :] = zf
+        self.value_g[worlds] = y[:, 0]

@@ -1,0 +1,159 @@
+"""``pourbench/Pour-v0``: PourNet's pouring task (thesis §6.4–6.6) as a Gymnasium env.
+
+The single environment is the batch of one of :class:`~pourbench.envs.core.PourBatch`.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from pourbench.envs.core import OBS_BOUND, OBS_SIZE, PourBatch, PourConfig
+
+RENDER_SIZE = (480, 640)  # height, width in pixels
+
+
+def observation_space() -> gym.spaces.Box:
+    """The 12-value observation space (float32)."""
+    return gym.spaces.Box(-OBS_BOUND, OBS_BOUND, (OBS_SIZE,), np.float32)
+
+
+def action_space() -> gym.spaces.Box:
+    """``(ω, r)`` in [-1, 1]² (float32)."""
+    return gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+
+def make_config(**kwargs: Any) -> PourConfig:
+    """A :class:`PourConfig` from keyword arguments (unknown names raise ``TypeError``)."""
+    return PourConfig(**kwargs)
+
+
+class PourEnv(gym.Env):
+    """Pour a target amount of liquid into a receiving container on a scale.
+
+    The pouring container is held kinematically (a mocap body, as PourNet was trained); the
+    receiving container (a tray of 10 cm radius) stands on a force/torque scale on a 0.75 m
+    table.
+
+    Observation (12 float32, the thesis' order):
+        0. liquid density, g/ml (= kg/m³ / 1000)
+        1. cohesion (FleX coefficient)
+        2. surface tension (FleX coefficient)
+        3. viscosity (FleX coefficient)
+        4. adhesion (FleX coefficient)
+        5. pouring-container diameter, m
+        6. pouring-container inner depth, m
+        7. measured liquid weight in the receiving container, g (scale force, tared, with
+           0.15 N noise, 2nd-order Butterworth low-pass at 1 Hz over 100 Hz samples)
+        8. target, g
+        9. fill-level difference: target − measured weight, g
+        10. running average pouring error over the last n completed episodes, g
+        11. pouring-container tilt about its forward axis, rad (0 = upright)
+
+    Action (2 float32 in [-1, 1]): ``ω`` rotational velocity (× ``limits.max_rate``, 0.8 rad/s)
+    and ``r`` translational velocity (× ``limits.max_speed``, 0.15 m/s). With
+    ``action_mode="thesis"`` (default) Algorithm 4 applies them; ``"free"`` applies both
+    directly.
+
+    Reward: Algorithm 5 (see :mod:`pourbench.envs.reward`). The episode terminates when the
+    container is upright again after pouring and the stream has stopped, or on a collision
+    between the containers; it is truncated at ``max_steps`` or when the liquid simulation
+    diverges (``info["sim_diverged"]``).
+
+    ``reset(options=...)`` accepts ``liquid`` (profile name), ``target_g``, ``container``
+    (pouring container name), ``initial_g`` and ``start`` (x, y, height of the pouring
+    container's base relative to the receiving container's, m). Unknown names raise
+    ``ValueError`` listing the known ones.
+
+    ``info``: ``poured_g``, ``spilled_g``, ``remaining_g``, ``in_flight_g``, ``initial_g``,
+    ``error_g``, ``target_g``, ``measured_g``, ``liquid``, ``container``, ``tilt``,
+    ``collided``, ``sim_diverged``, ``is_success``, ``average_error_g``.
+
+    Args:
+        render_mode: None or "rgb_array" (MuJoCo offscreen renderer, particles as spheres).
+        **kwargs: fields of :class:`~pourbench.envs.core.PourConfig` (e.g. ``liquid="water"``,
+            ``action_mode="free"``, ``container_set="novel"``, ``solver=SolverConfig(...)``).
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self.batch = PourBatch(1, make_config(**kwargs))
+        self.config = self.batch.config
+        self.metadata = {**self.metadata, "render_fps": self.config.control_hz}
+        self.observation_space = observation_space()
+        self.action_space = action_space()
+        self._renderer: mujoco.Renderer | None = None
+
+    def set_lesson(self, k: int) -> None:
+        """Draw liquids from curriculum lesson ``k`` at later resets (when ``liquid`` is None)."""
+        self.batch.set_lesson(k)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        self.batch.reset_world(0, seed=seed, options=options)
+        self.batch.flush()
+        info = _world_info(self.batch.measure(), 0)
+        info.update(collided=False, sim_diverged=False, is_success=False)
+        info["average_error_g"] = float(self.batch.history.average()[0])
+        return self.batch.observe()[0], info
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        a = np.asarray(action, dtype=float).reshape(1, 2)
+        obs, rew, term, trunc, info = self.batch.step(a)
+        return obs[0], float(rew[0]), bool(term[0]), bool(trunc[0]), _world_info(info, 0)
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.batch.model, *RENDER_SIZE, max_geom=20000)
+        return render_world(self.batch, 0, self._renderer)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def _world_info(info: dict[str, np.ndarray], w: int) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in info.items():
+        x = v[w]
+        out[k] = x.item() if isinstance(x, np.generic) else x
+    return out
+
+
+def render_world(batch: PourBatch, world: int, renderer: mujoco.Renderer) -> np.ndarray:
+    """RGB image (H, W, 3) of one world: MuJoCo's containers plus the particles as spheres."""
+    cam = mujoco.MjvCamera()
+    cam.lookat[:] = [-0.05, 0.0, 0.85]
+    cam.distance, cam.azimuth, cam.elevation = 0.75, 90.0, -20.0
+    renderer.update_scene(batch.datas[world], camera=cam)
+    scene = renderer.scene
+    x = batch.solver.positions()[batch.solver.world_slice(world)]
+    r = 0.5 * batch.solver_config.spacing
+    eye = np.eye(3).ravel()
+    rgba = np.array([0.2, 0.45, 0.9, 1.0], np.float32)
+    for p in x[np.isfinite(x).all(1)][: scene.maxgeom - scene.ngeom]:
+        mujoco.mjv_initGeom(
+            scene.geoms[scene.ngeom],
+            mujoco.mjtGeom.mjGEOM_SPHERE,
+            np.array([r, 0.0, 0.0]),
+            p.astype(float),
+            eye,
+            rgba,
+        )
+        scene.ngeom += 1
+    return renderer.render()
+
+
+__all__ = ["PourEnv", "action_space", "observation_space", "render_world"]

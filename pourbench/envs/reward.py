@@ -1,0 +1,76 @@
+"""Algorithm 5 of the thesis (PourNet's extrinsic reward), batched over worlds.
+
+Per step, while the received weight is below ``target − tolerance`` (still pouring):
+``−1 / max_steps``. On a collision between the containers: ``−1`` and the episode ends (no
+bonus). When an episode ends normally: ``+1`` if its pouring error is at most ``success_g``
+(10 g) and ``+1`` if the average error over the last ``n`` successfully completed episodes
+(this one included) is at most ``average_success_g`` (20 g).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Algorithm 5's constants.
+
+    Attributes:
+        success_g: episode error that earns the first bonus, g.
+        average_success_g: running average error that earns the second bonus, g.
+        window: number ``n`` of past completed episodes in the running average.
+    """
+
+    success_g: float = 10.0
+    average_success_g: float = 20.0
+    window: int = 10
+
+
+def extrinsic_reward(
+    pouring: np.ndarray,
+    collided: np.ndarray,
+    finished: np.ndarray,
+    error_g: np.ndarray,
+    average_error_g: np.ndarray,
+    max_steps: int,
+    config: RewardConfig = RewardConfig(),
+) -> np.ndarray:
+    """Algorithm 5's reward of one step for a batch of worlds.
+
+    Args:
+        pouring: (n,) received weight still below target − tolerance.
+        collided: (n,) the containers collided this step (ends the episode, no bonus).
+        finished: (n,) the episode ended normally this step (upright, stream stopped).
+        error_g: (n,) this episode's pouring error |poured − target|, g.
+        average_error_g: (n,) running average error over the last n completed episodes,
+            including this one where ``finished``, g.
+        max_steps: episode step limit.
+        config: the constants.
+    """
+    r = np.where(pouring, -1.0 / max_steps, 0.0)
+    r = r - np.where(collided, 1.0, 0.0)
+    bonus = finished & ~collided
+    r = r + np.where(bonus & (error_g <= config.success_g), 1.0, 0.0)
+    r = r + np.where(bonus & (average_error_g <= config.average_success_g), 1.0, 0.0)
+    return r
+
+
+class ErrorHistory:
+    """Per-world errors of the last ``window`` completed episodes (the thesis' Avg. Pouring
+    Error, §6.5.1)."""
+
+    def __init__(self, num_worlds: int, window: int = 10) -> None:
+        self.window = int(window)
+        self.errors = [deque(maxlen=self.window) for _ in range(num_worlds)]
+
+    def add(self, world: int, error_g: float) -> None:
+        """Record a completed episode's error (g)."""
+        self.errors[world].append(float(error_g))
+
+    def average(self) -> np.ndarray:
+        """(n,) average error per world, g (0 before any completed episode)."""
+        return np.array([float(np.mean(e)) if e else 0.0 for e in self.errors])

@@ -1,0 +1,155 @@
+"""Vector ``pourbench/Pour-v0``: N worlds in one fluid solver, Gymnasium 1.x autoreset.
+
+``gymnasium.make_vec("pourbench/Pour-v0", num_envs=N, vectorization_mode="vector_entry_point")``
+returns a :class:`PourVectorEnv`. One :class:`~pourbench.envs.core.PourBatch` steps all worlds
+with one kernel launch per solver stage. World ``k`` reset with seed ``s + k`` follows the
+same episodes as a single :class:`~pourbench.envs.pour.PourEnv` reset with that seed.
+
+Autoreset: ``"next_step"`` (Gymnasium's default): a world whose episode ended is reset on the
+next ``step`` call, which then returns its first observation with reward 0 and ignores its
+action. ``"same_step"``: a finished world is reset within the same ``step``; its last
+observation and info are in ``info["final_obs"]`` / ``info["final_info"]``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import mujoco
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from pourbench.envs.core import PourBatch
+from pourbench.envs.pour import RENDER_SIZE, action_space, make_config, observation_space
+from pourbench.envs.pour import render_world as _render_world
+
+_MODES = {"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP}
+
+
+class PourVectorEnv(VectorEnv):
+    """``num_envs`` pouring worlds stepped together (see the module docstring).
+
+    Args:
+        num_envs: number of worlds.
+        autoreset_mode: "next_step" (default) or "same_step".
+        render_mode: None or "rgb_array" (``render()`` returns one image per world).
+        **kwargs: fields of :class:`~pourbench.envs.core.PourConfig`.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": ["rgb_array"],
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        autoreset_mode: str | AutoresetMode = "next_step",
+        render_mode: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        mode = _MODES.get(autoreset_mode, autoreset_mode)
+        if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
+            raise ValueError(
+                f"autoreset_mode must be one of {list(_MODES)}, got {autoreset_mode!r}"
+            )
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.num_envs = int(num_envs)
+        self.batch = PourBatch(self.num_envs, make_config(**kwargs))
+        self.config = self.batch.config
+        self.autoreset_mode = mode
+        self.metadata = {**self.metadata, "autoreset_mode": mode}
+        self.render_mode = render_mode
+        self.single_observation_space = observation_space()
+        self.single_action_space = action_space()
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._needs_reset = np.zeros(self.num_envs, bool)
+        self._renderer: mujoco.Renderer | None = None
+
+    def set_lesson(self, k: int) -> None:
+        """Draw liquids from curriculum lesson ``k`` at later resets, in every world."""
+        self.batch.set_lesson(k)
+
+    def reset(
+        self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset every world (or those in ``options["reset_mask"]``).
+
+        ``seed``: an int ``s`` seeds world ``k`` with ``s + k``; a list gives one per world.
+        Other ``options`` (liquid, target_g, container, initial_g, start) apply to every
+        world reset.
+        """
+        super().reset(seed=seed if isinstance(seed, int) else None)
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif isinstance(seed, int):
+            seeds = [seed + k for k in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"{len(seeds)} seeds for {self.num_envs} worlds")
+        opts = dict(options or {})
+        mask = np.asarray(opts.pop("reset_mask", np.ones(self.num_envs, bool)), bool)
+        for k in np.flatnonzero(mask):
+            self.batch.reset_world(int(k), seeds[k], opts)
+        self.batch.flush()
+        self._needs_reset[mask] = False
+        info = self._info(self.batch.measure(), mask)
+        return self.batch.observe(), info
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        a = np.asarray(actions, dtype=float).reshape(self.num_envs, 2)
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"actions must be finite, got {a.tolist()}")
+        resetting = self._needs_reset.copy()
+        if resetting.any():  # next-step autoreset
+            for k in np.flatnonzero(resetting):
+                self.batch.reset_world(int(k))
+            self.batch.flush()
+        obs, rew, term, trunc, info = self.batch.step(a, active=~resetting)
+        rew = np.where(resetting, 0.0, rew)
+        term, trunc = term & ~resetting, trunc & ~resetting
+        infos = self._info(info, np.ones(self.num_envs, bool))
+        done = term | trunc
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
+            infos["final_obs"] = np.array(
+                [o if d else None for o, d in zip(obs, done, strict=True)], object
+            )
+            infos["_final_obs"] = done.copy()
+            infos["final_info"] = self._info(info, done)
+            infos["_final_info"] = done.copy()
+            for k in np.flatnonzero(done):
+                self.batch.reset_world(int(k))
+            self.batch.flush()
+            obs = self.batch.observe()
+        else:
+            self._needs_reset = done
+        return obs, rew.astype(np.float64), term, trunc, infos
+
+    def _info(self, info: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for k, v in info.items():
+            out[k] = v
+            out[f"_{k}"] = mask.copy()
+        return out
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        """One RGB image per world (``render_mode="rgb_array"``)."""
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.batch.model, *RENDER_SIZE, max_geom=20000)
+        return tuple(_render_world(self.batch, w, self._renderer) for w in range(self.num_envs))
+
+    def close_extras(self, **kwargs: Any) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+__all__ = ["PourVectorEnv"]
