@@ -239,6 +239,7 @@ def _metrics_rows(segs: list[dict]) -> dict:
         "avg_sq_quat_error": float(arr("sq_quat").mean()),
         "min_clearance_m": min_clear if np.isfinite(min_clear) else None,  # None: no obstacle
         "collisions": int(arr("collided").sum()),
+        "joint_limit_violation_rad": float(arr("limit_violation").max()),
         "goals": len(segs),
         "avg_iterations": float(np.mean(np.concatenate([s["iters"] for s in segs])))
         if any(len(s["iters"]) for s in segs)
@@ -250,6 +251,7 @@ def _segment_record(kin, qs, goal, times, iters, success, clear, ts_speed) -> di
     """Per-goal metrics from a joint trajectory ``qs`` (already dense enough)."""
     st = kin.forward_many(qs, jacobians=False)
     ee = st.ee_pos
+    over = np.maximum(np.maximum(kin.lower - qs, qs - kin.upper), 0.0)
     straight = float(np.linalg.norm(goal[0] - ee[0]))
     length = float(np.linalg.norm(np.diff(ee, axis=0), axis=1).sum())
     return {
@@ -260,6 +262,7 @@ def _segment_record(kin, qs, goal, times, iters, success, clear, ts_speed) -> di
         "sq_quat": _quat_sq_error(st.ee_quat[-1], goal[1]),
         "min_clear": clear,
         "collided": bool(clear <= 0.0),
+        "limit_violation": float(over.max()) if over.size else 0.0,
         "times": np.asarray(times, float),
         "iters": np.asarray(iters, float),
     }
@@ -434,7 +437,7 @@ TASK_TITLES = {
 COLUMNS = [
     "planner", "avg_normalized_length", "avg_time_s", "avg_joint_speed", "avg_sq_pos_error",
     "avg_sq_quat_error", "success_rate", "min_clearance_m", "collisions", "avg_iterations",
-    "max_time_s",
+    "max_time_s", "joint_limit_violation_rad",
 ]  # fmt: skip
 THESIS_COLUMNS = ["planner", "avg_normalized_length", "avg_time_s", "avg_joint_speed",
                   "avg_sq_pos_error", "avg_sq_quat_error", "success_rate"]  # fmt: skip
@@ -463,6 +466,19 @@ def _targets(rows: list[dict]) -> list[str]:
             f"({worst['task']}) {worst['planner']}); slowest single call "
             f"{1000 * max(r['max_time_s'] for r in nm):.0f} ms (the {1000 * TIME_BUDGET:.0f} ms "
             "budget stops iterating, one iteration can overrun it)."
+        )
+    pandas = [r for r in rows if r["robot"] == "panda" and r["planner"].startswith("NMPC")]
+    if pandas:
+        v = max(r["joint_limit_violation_rad"] for r in pandas)
+        out.append(f"- Panda joint limits, NMPC-MP, every task: largest violation {v:.3g} rad "
+                   f"({ok(v == 0.0)}).")  # fmt: skip
+    dyn = [r for r in rows if r["task"] == "iv" and r["planner"].startswith("NMPC")]
+    for r in dyn:
+        out.append(
+            f"- Task (iv), {r['robot']}, {r['planner']}: min clearance "
+            f"{r['min_clearance_m']:.4f} m "
+            f"(≥ safety − 5 mm = {SAFETY_DYNAMIC - 0.005:.3f}: "
+            f"{ok(r['min_clearance_m'] >= SAFETY_DYNAMIC - 0.005)}), collisions {r['collisions']}."
         )
     pairs = []
     for r in rows:
@@ -550,6 +566,7 @@ def run(args: argparse.Namespace) -> int:
                 )
     extra = {
         "quick": quick,
+        "load_average_at_end": list(os.getloadavg()),
         "thesis": {k: {n: list(v) for n, v in d.items()} for k, d in THESIS.items()},
         "cpu_affinity": sorted(os.sched_getaffinity(0))
         if hasattr(os, "sched_getaffinity")
