@@ -370,7 +370,8 @@ class PourBatch:
                 [
                     i
                     for i, w in enumerate(self.worlds)
-                    if math.floor(w.substeps * dt * cfg.sensor_rate_hz + 1e-9)
+                    if active[i]
+                    and math.floor(w.substeps * dt * cfg.sensor_rate_hz + 1e-9)
                     > math.floor((w.substeps - 1) * dt * cfg.sensor_rate_hz + 1e-9)
                 ],
                 dtype=int,

@@ -133,12 +133,18 @@ def _world_info(info: dict[str, np.ndarray], w: int) -> dict[str, Any]:
 
 
 def render_world(batch: PourBatch, world: int, renderer: mujoco.Renderer) -> np.ndarray:
-    """RGB image (H, W, 3) of one world: MuJoCo's containers plus the particles as spheres."""
+    """RGB image (H, W, 3) of one world: MuJoCo's containers (translucent) plus the particles
+    as spheres, seen from the side of the pour."""
     cam = mujoco.MjvCamera()
     cam.lookat[:] = [-0.05, 0.0, 0.85]
     cam.distance, cam.azimuth, cam.elevation = 0.75, 90.0, -20.0
-    renderer.update_scene(batch.datas[world], camera=cam)
+    opt = mujoco.MjvOption()
+    opt.sitegroup[:] = 0
+    renderer.update_scene(batch.datas[world], camera=cam, scene_option=opt)
     scene = renderer.scene
+    for g in scene.geoms[: scene.ngeom]:  # see-through containers (the only meshes)
+        if g.type == mujoco.mjtGeom.mjGEOM_MESH:
+            g.rgba[3] = 0.35
     x = batch.solver.positions()[batch.solver.world_slice(world)]
     r = 0.5 * batch.solver_config.spacing
     eye = np.eye(3).ravel()

@@ -107,11 +107,20 @@ class PourVectorEnv(VectorEnv):
         if not np.all(np.isfinite(a)):
             raise ValueError(f"actions must be finite, got {a.tolist()}")
         resetting = self._needs_reset.copy()
-        if resetting.any():  # next-step autoreset
+        # every world's physics advances together; a world due for its next-step autoreset
+        # holds still through this step and is reset after it, so it returns its first
+        # observation of the new episode
+        obs, rew, term, trunc, info = self.batch.step(a, active=~resetting)
+        if resetting.any():
             for k in np.flatnonzero(resetting):
                 self.batch.reset_world(int(k))
             self.batch.flush()
-        obs, rew, term, trunc, info = self.batch.step(a, active=~resetting)
+            obs = self.batch.observe()
+            fresh = self.batch.measure()
+            for key, v in fresh.items():
+                info[key] = np.where(resetting, v, info[key])
+            for key in ("collided", "sim_diverged", "is_success"):
+                info[key] = info[key] & ~resetting
         rew = np.where(resetting, 0.0, rew)
         term, trunc = term & ~resetting, trunc & ~resetting
         infos = self._info(info, np.ones(self.num_envs, bool))

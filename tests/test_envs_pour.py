@@ -1,0 +1,193 @@
+"""Pour-v0 with the liquid simulation: Gymnasium's checker, determinism, vector/single
+equivalence, mass accounting, collisions, divergence, bad input, autoreset, curriculum."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import pourbench  # noqa: F401  (registers the ids)
+from pourbench.envs.pour import PourEnv
+from pourbench.envs.vector import PourVectorEnv
+
+ABOVE = (-0.02, 0.0, 0.12)  # start just above the receiving tray: pours within ~20 steps
+
+
+def _rollout(env: gym.Env, seed: int, actions: np.ndarray, options=None):
+    obs, _ = env.reset(seed=seed, options=options)
+    out = [obs]
+    infos = []
+    for a in actions:
+        obs, rew, term, trunc, info = env.step(a)
+        out.append(obs)
+        infos.append((rew, term, trunc, info["poured_g"], info["remaining_g"]))
+    return np.array(out), infos
+
+
+def test_gymnasium_env_checker() -> None:
+    env = gym.make("pourbench/Pour-v0", max_steps=10)
+    check_env(env.unwrapped, skip_render_check=True)
+    assert isinstance(env.unwrapped, PourEnv)
+
+
+def test_same_seed_same_episode() -> None:
+    acts = np.tile([[1.0, 1.0]], (12, 1))
+    env = PourEnv()
+    a, ia = _rollout(env, 3, acts)
+    b, ib = _rollout(PourEnv(), 3, acts)
+    np.testing.assert_array_equal(a, b)
+    assert ia == ib
+    c, _ = _rollout(env, 4, acts[:1])
+    assert not np.array_equal(a[0], c[0])  # another seed: another liquid/target
+
+
+def test_vector_world_equals_single_env() -> None:
+    n, seed, steps = 2, 10, 24
+    rng = np.random.default_rng(0)
+    acts = np.stack([np.tile([[1.0, 1.0]], (steps, 1)), rng.uniform(-1, 1, (steps, 2))], 1)
+    venv = gym.make_vec(
+        "pourbench/Pour-v0",
+        num_envs=n,
+        vectorization_mode="vector_entry_point",
+        liquid="water",
+        max_steps=steps // 2,  # world resets mid-rollout
+    )
+    assert isinstance(venv, PourVectorEnv)
+    obs, _ = venv.reset(seed=seed, options={"start": ABOVE})
+    vec = [obs]
+    for t in range(steps):
+        obs, *_ = venv.step(acts[t])
+        vec.append(obs)
+    vec = np.array(vec)
+    for k in range(n):
+        single = PourEnv(liquid="water", max_steps=steps // 2)
+        obs, _ = single.reset(seed=seed + k, options={"start": ABOVE})
+        got, done = [obs], False
+        for t in range(steps):
+            if done:  # next-step autoreset: the vector env resets, ignoring the action
+                obs, _ = single.reset()
+                done = False
+            else:
+                obs, _, term, trunc, _ = single.step(acts[t, k])
+                done = term or trunc
+            got.append(obs)
+        np.testing.assert_array_equal(np.array(got), vec[:, k])
+
+
+def test_mass_accounting_every_step() -> None:
+    env = PourEnv(liquid="water")
+    _, info = env.reset(seed=1, options={"start": ABOVE, "target_g": 60.0, "initial_g": 150.0})
+    assert info["initial_g"] == pytest.approx(150.0, rel=0.005)
+    for _ in range(30):
+        _, _, _, trunc, info = env.step(np.array([1.0, 0.0]))
+        total = info["poured_g"] + info["spilled_g"] + info["remaining_g"] + info["in_flight_g"]
+        assert total == pytest.approx(info["initial_g"], rel=0.005)
+        assert not trunc
+    assert info["poured_g"] > 30.0  # the liquid did move into the receiving container
+
+
+def test_collision_ends_episode_with_penalty() -> None:
+    env = PourEnv(liquid="water")
+    env.reset(seed=0, options={"start": (-0.165, 0.0, 0.0)})  # low, beside the tray
+    for _ in range(10):
+        _, rew, term, trunc, info = env.step(np.array([0.0, 1.0]))
+        if term:
+            break
+    assert term and not trunc and info["collided"]
+    assert rew <= -1.0
+
+
+def test_diverged_world_truncates_and_resets() -> None:
+    venv = PourVectorEnv(2, liquid="water")
+    venv.reset(seed=0)
+    solver = venv.batch.solver
+    x = solver.positions()
+    x[solver.world_slice(0)][:5] = np.nan
+    solver.x.assign(x.astype(np.float32))
+    obs, rew, term, trunc, info = venv.step(np.zeros((2, 2)))
+    assert trunc[0] and not term[0] and info["sim_diverged"][0]
+    assert not trunc[1] and not info["sim_diverged"][1]
+    assert np.all(np.isfinite(obs))
+    obs, rew, term, trunc, info = venv.step(np.zeros((2, 2)))  # autoreset of world 0
+    assert not trunc[0] and not info["sim_diverged"][0] and rew[0] == 0.0
+    assert np.all(np.isfinite(solver.positions()))
+
+
+def test_bad_input() -> None:
+    env = PourEnv()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([np.nan, 0.0]))
+    with pytest.raises(ValueError, match="Water"):
+        env.reset(options={"liquid": "lava"})
+    with pytest.raises(ValueError, match="training"):
+        env.reset(options={"container": "bucket"})
+    with pytest.raises(ValueError, match="target_g"):
+        env.reset(options={"target_g": -5.0})
+    with pytest.raises(ValueError, match="lesson"):
+        env.set_lesson(7)
+    venv = PourVectorEnv(2)
+    venv.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        venv.step(np.array([[0.0, 0.0], [0.0, np.nan]]))
+
+
+def test_vector_autoreset_rollout() -> None:
+    venv = PourVectorEnv(2, max_steps=3)
+    obs, info = venv.reset(seed=5)
+    assert obs.shape == (2, 12) and venv.observation_space.contains(obs)
+    for _ in range(3):
+        obs, rew, term, trunc, info = venv.step(venv.action_space.sample())
+    assert trunc.all() and not term.any()
+    last = obs.copy()
+    obs, rew, term, trunc, info = venv.step(venv.action_space.sample())
+    np.testing.assert_array_equal(rew, 0.0)  # the reset step
+    assert not (term | trunc).any()
+    assert not np.array_equal(obs[:, 8], last[:, 8])  # new targets drawn
+
+    same = PourVectorEnv(2, max_steps=2, autoreset_mode="same_step")
+    same.reset(seed=5)
+    same.step(np.zeros((2, 2)))
+    obs, rew, term, trunc, info = same.step(np.zeros((2, 2)))
+    assert trunc.all()
+    assert info["_final_obs"].all() and info["final_obs"][0].shape == (12,)
+    assert info["final_info"]["target_g"][0] == pytest.approx(info["final_obs"][0][8], abs=1e-3)
+
+
+def test_set_lesson_single_and_vector() -> None:
+    env = PourEnv()
+    venv = PourVectorEnv(2)
+    lo, hi = env.batch.lessons[2].ranges["viscosity"]
+    env.set_lesson(2)
+    venv.set_lesson(2)
+    env.reset(seed=0)
+    assert lo <= env.batch.worlds[0].liquid.viscosity <= hi
+    obs, _ = venv.reset(seed=0)
+    assert np.all((obs[:, 3] >= lo) & (obs[:, 3] <= hi))
+
+
+def test_rgb_render_headless() -> None:
+    code = (
+        "import numpy as np, pourbench, gymnasium as gym\n"
+        "env = gym.make('pourbench/Pour-v0', render_mode='rgb_array', liquid='water')\n"
+        "env.reset(seed=0, options={'start': (-0.02, 0.0, 0.12)})\n"
+        "img = env.render()\n"
+        "assert img.shape == (480, 640, 3) and img.dtype == np.uint8\n"
+        "env.unwrapped.batch.solver.clear_world(0)\n"
+        "empty = env.render()\n"
+        "print('DIFF', int((np.abs(img.astype(int) - empty).sum(-1) > 30).sum()))\n"
+    )
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    res = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
+    if res.returncode and ("OpenGL" in res.stderr or "EGL" in res.stderr):
+        pytest.skip(f"no offscreen OpenGL here: {res.stderr.strip().splitlines()[-1]}")
+    assert res.returncode == 0, res.stderr
+    assert int(res.stdout.split("DIFF")[1]) > 200  # the liquid's particles are drawn
