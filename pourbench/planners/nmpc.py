@@ -130,7 +130,8 @@ class NMPCResult:
             obstacles).
         restoration_iterations: iterations of the warm start's feasibility restoration.
         solve_time_s: wall time of the call (s).
-        status: ``"converged"``, ``"iteration_cap"``, ``"time_budget"`` or ``"line_search"``.
+        status: ``"converged"``, ``"iteration_cap"``, ``"time_budget"``, ``"line_search"`` (no
+            decrease of the merit function along the step) or ``"qp_failed"``.
     """
 
     u: np.ndarray
@@ -261,7 +262,6 @@ class NMPCPlanner:
                 rows.append(row.reshape(-1))
         self.A_lin = np.array(rows) if rows else np.zeros((0, self.nU))
         self._U_prev: np.ndarray | None = None
-        self.last_cold_iterations: int | None = None
 
     # ----------------------------------------------------------------- public API
     def reset(self) -> None:
