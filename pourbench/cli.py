@@ -30,6 +30,24 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return rc
 
 
+def _cmd_eval(args: argparse.Namespace) -> int:
+    from pourbench.agents.evaluate import evaluate
+
+    result = evaluate(
+        args.policy,
+        args.episodes,
+        args.target_g,
+        seed=args.seed,
+        progress=True,
+        liquid=args.liquid,
+        container_set=args.containers,
+    )
+    for k, (e, s) in enumerate(zip(result.errors_g, result.spilled_g, strict=True)):
+        print(f"episode {k}: error {e:6.2f} g  spill {s:6.2f} g  steps {result.steps[k]}")
+    print(f"{args.policy} on {args.liquid}, target {args.target_g:g} g: {result.summary()}")
+    return 0
+
+
 def _cmd_liquids(args: argparse.Namespace) -> int:
     from pourbench.fluids import liquid_names, liquid_profile
 
@@ -76,6 +94,15 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--out", default="leaderboard", help="folder for the tables")
     bench.add_argument("--no-write", action="store_true", help="do not write leaderboard files")
     bench.set_defaults(func=_cmd_bench)
+
+    ev = sub.add_parser("eval", help="pour with a policy on Pour-v0; print error, spill, success")
+    ev.add_argument("--policy", default="pd", choices=("pd", "random"))
+    ev.add_argument("--liquid", default="water", help="liquid profile name")
+    ev.add_argument("--target-g", type=float, default=100.0, help="target amount, g")
+    ev.add_argument("--episodes", type=int, default=10)
+    ev.add_argument("--seed", type=int, default=0, help="first episode's seed")
+    ev.add_argument("--containers", default="training", choices=("training", "novel"))
+    ev.set_defaults(func=_cmd_eval)
 
     liquids = sub.add_parser("liquids", help="list the shipped liquid profiles")
     liquids.set_defaults(func=_cmd_liquids)

@@ -191,3 +191,25 @@ def test_rgb_render_headless() -> None:
         pytest.skip(f"no offscreen OpenGL here: {res.stderr.strip().splitlines()[-1]}")
     assert res.returncode == 0, res.stderr
     assert int(res.stdout.split("DIFF")[1]) > 200  # the liquid's particles are drawn
+
+
+def test_episode_ends_upright_with_algorithm5_bonus() -> None:
+    env = PourEnv(liquid="water")
+    opts = {"start": ABOVE, "target_g": 60.0, "initial_g": 150.0}
+    _, info = env.reset(seed=2, options=opts)
+    rewards = []
+    for _ in range(120):
+        back = info.get("measured_g", 0.0) >= 45.0 or env.batch.tilt[0] > 1.9
+        _, rew, term, trunc, info = env.step(np.array([-1.0 if back else 1.0, 0.0]))
+        rewards.append(rew)
+        if term or trunc:
+            break
+    assert term and not trunc and not info["collided"]
+    assert info["tilt"] <= env.config.upright_tilt
+    assert info["poured_g"] > 20.0
+    # first completed episode: the running average is this episode's error
+    assert info["average_error_g"] == pytest.approx(info["error_g"])
+    bonus = (info["error_g"] <= 10.0) + (info["average_error_g"] <= 20.0)
+    assert rewards[-1] == pytest.approx(bonus)
+    assert all(r in (0.0, pytest.approx(-1 / env.config.max_steps)) for r in rewards[:-1])
+    assert info["is_success"] == (info["error_g"] <= 10.0)

@@ -71,6 +71,8 @@ class PourConfig:
         upright_tilt: tilt below which the container counts as upright again, rad.
         pour_tilt: tilt that marks the pour as started, rad.
         stream_stop_g: liquid in flight below which the stream has stopped, g.
+        settle_time: time upright after which the stream counts as stopped whatever is still
+            "in flight" (drops clinging to a rim), s.
         sensor_rate_hz, sensor_cutoff_hz, sensor_noise_n: the weight filter (Hz, Hz, N).
         receiving: receiving container name.
         container_set: "training" or "novel" (the pouring containers drawn from).
@@ -94,6 +96,7 @@ class PourConfig:
     upright_tilt: float = 0.05
     pour_tilt: float = 0.3
     stream_stop_g: float = 2.0
+    settle_time: float = 1.0
     sensor_rate_hz: float = 100.0
     sensor_cutoff_hz: float = 1.0
     sensor_noise_n: float = 0.15
@@ -117,6 +120,7 @@ class WorldState:
     steps: int = 0
     substeps: int = 0
     started: bool = False
+    upright_steps: int = 0
     done: bool = False
 
 
@@ -398,12 +402,20 @@ class PourBatch:
             if active[w]:
                 st.steps += 1
                 st.started |= bool(self.max_tilt[w] >= cfg.pour_tilt)
+                upright = st.started and self.tilt[w] <= cfg.upright_tilt
+                st.upright_steps = st.upright_steps + 1 if upright else 0
         steps = np.array([w.steps for w in self.worlds])
         started = np.array([w.started for w in self.worlds])
         finished = (
             started
             & (self.tilt <= cfg.upright_tilt)
-            & (info["in_flight_g"] < cfg.stream_stop_g)
+            & (
+                (info["in_flight_g"] < cfg.stream_stop_g)
+                | (
+                    np.array([w.upright_steps for w in self.worlds]) * self.control_dt
+                    >= cfg.settle_time - 1e-9
+                )
+            )
             & ~collided
             & ~diverged
         )

@@ -126,9 +126,10 @@ class PourVectorEnv(VectorEnv):
         infos = self._info(info, np.ones(self.num_envs, bool))
         done = term | trunc
         if self.autoreset_mode == AutoresetMode.SAME_STEP and done.any():
-            infos["final_obs"] = np.array(
-                [o if d else None for o, d in zip(obs, done, strict=True)], object
-            )
+            final = np.empty(self.num_envs, dtype=object)
+            for k in np.flatnonzero(done):
+                final[k] = obs[k].copy()
+            infos["final_obs"] = final
             infos["_final_obs"] = done.copy()
             infos["final_info"] = self._info(info, done)
             infos["_final_info"] = done.copy()

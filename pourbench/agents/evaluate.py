@@ -1,0 +1,104 @@
+"""Evaluate a pouring policy on ``pourbench/Pour-v0``: error, spill and success per episode.
+
+Used by ``pourbench eval`` (the thesis' Table 6.3 protocol: a liquid, a target, n pours).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from pourbench.agents.pd import PDConfig, PDPourer
+from pourbench.envs.pour import PourEnv
+
+POLICIES: tuple[str, ...] = ("pd", "random")
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """Per-episode outcomes (grams) and their summary.
+
+    Attributes:
+        errors_g: |poured − target| per episode, g.
+        spilled_g: liquid on the table per episode, g.
+        success: episode ended normally with error ≤ 10 g.
+        steps: environment steps per episode.
+    """
+
+    errors_g: np.ndarray
+    spilled_g: np.ndarray
+    success: np.ndarray
+    steps: np.ndarray
+
+    @property
+    def mean_abs_error_g(self) -> float:
+        return float(np.mean(self.errors_g))
+
+    @property
+    def success_rate(self) -> float:
+        return float(np.mean(self.success))
+
+    def summary(self) -> str:
+        """One line: mean absolute error ± std, mean spill, success rate."""
+        return (
+            f"mean abs error {self.mean_abs_error_g:.2f} ± {np.std(self.errors_g):.2f} g, "
+            f"spill {np.mean(self.spilled_g):.2f} g, success {100 * self.success_rate:.0f} % "
+            f"over {len(self.errors_g)} episodes"
+        )
+
+
+def make_policy(name: str, seed: int = 0) -> Callable[[np.ndarray, bool], np.ndarray]:
+    """A policy ``f(obs, new_episode) -> action`` by name ("pd" or "random")."""
+    if name == "pd":
+        pd = PDPourer(1, PDConfig())
+
+        def act(obs: np.ndarray, new: bool) -> np.ndarray:
+            if new:
+                pd.reset()
+            return pd.act(obs)
+
+        return act
+    if name == "random":
+        rng = np.random.default_rng(seed)
+        return lambda obs, new: rng.uniform(-1.0, 1.0, 2).astype(np.float32)
+    raise ValueError(f"unknown policy {name!r}; known: {list(POLICIES)}")
+
+
+def evaluate(
+    policy: str | Callable[[np.ndarray, bool], np.ndarray],
+    episodes: int = 10,
+    target_g: float | None = 100.0,
+    seed: int = 0,
+    progress: bool = False,
+    **env_kwargs: Any,
+) -> EvalResult:
+    """Run ``episodes`` episodes (seeds ``seed``, ``seed + 1``, …) and collect the outcomes.
+
+    Args:
+        policy: "pd", "random" or a callable ``f(obs, new_episode) -> action``.
+        episodes: number of episodes.
+        target_g: target of every episode (None: drawn by the env), g.
+        seed: first episode's seed.
+        progress: show a progress bar.
+        **env_kwargs: :class:`~pourbench.envs.core.PourConfig` fields (e.g. ``liquid``).
+    """
+    act = make_policy(policy, seed) if isinstance(policy, str) else policy
+    env = PourEnv(**env_kwargs)
+    errors, spills, success, steps = [], [], [], []
+    options = {} if target_g is None else {"target_g": float(target_g)}
+    for ep in tqdm(range(episodes), desc="episodes", disable=not progress):
+        obs, _ = env.reset(seed=seed + ep, options=options)
+        new, done, n = True, False, 0
+        while not done:
+            obs, _, term, trunc, info = env.step(act(obs, new))
+            new, done, n = False, term or trunc, n + 1
+        errors.append(info["error_g"])
+        spills.append(info["spilled_g"])
+        success.append(bool(info["is_success"]))
+        steps.append(n)
+    env.close()
+    return EvalResult(np.array(errors), np.array(spills), np.array(success), np.array(steps))
