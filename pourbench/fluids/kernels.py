@@ -202,6 +202,51 @@ def build_neighbours(
     nbr_count[i] = count
 
 
+@wp.func
+def spread_bits(v: wp.uint64) -> wp.uint64:
+    """Interleave the low 11 bits of ``v`` with two zero bits each (for a Morton code)."""
+    x = v & wp.uint64(0x7FF)
+    x = (x | (x << wp.uint64(16))) & wp.uint64(0x7F0000FF)
+    x = (x | (x << wp.uint64(8))) & wp.uint64(0x700F00F00F)
+    x = (x | (x << wp.uint64(4))) & wp.uint64(0x430C30C30C3)
+    x = (x | (x << wp.uint64(2))) & wp.uint64(0x49249249249)
+    return x
+
+
+@wp.kernel
+def order_keys(
+    x: wp.array(dtype=wp.vec3),
+    world: wp.array(dtype=wp.int32),
+    inv_cell: float,
+    keys: wp.array(dtype=wp.int64),
+    values: wp.array(dtype=wp.int32),
+):
+    """Sort key (world, Morton code of the cell) that keeps worlds contiguous and neighbours
+    close in memory."""
+    i = wp.tid()
+    c = cell_of(x[i], inv_cell)
+    m = (
+        spread_bits(wp.uint64(c[0]))
+        | (spread_bits(wp.uint64(c[1])) << wp.uint64(1))
+        | (spread_bits(wp.uint64(c[2])) << wp.uint64(2))
+    )
+    keys[i] = wp.int64((wp.uint64(world[i]) << wp.uint64(33)) | m)
+    values[i] = i
+
+
+@wp.kernel
+def gather_state(
+    order: wp.array(dtype=wp.int32),
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    x_out: wp.array(dtype=wp.vec3),
+    v_out: wp.array(dtype=wp.vec3),
+):
+    k = wp.tid()
+    x_out[k] = x[order[k]]
+    v_out[k] = v[order[k]]
+
+
 # ------------------------------------------------------------- step 3: density constraints
 
 
