@@ -75,6 +75,7 @@ from pourbench.teleop import (  # noqa: E402
     feeding_demos,
     letter_demos,
     register_nonrigid,
+    register_skill,
     task_outage,
 )
 
@@ -353,6 +354,7 @@ def run(args: argparse.Namespace) -> int:
                         jobs.append((op, "3d", T, rep, var, _operator(op, "3d", T, rep, lib3)))
     rows: list[dict[str, Any]] = []
     timing_cases: list[tuple[np.ndarray, np.ndarray]] = []
+    switch_cases: list[tuple[np.ndarray, np.ndarray, SkillCPDConfig]] = []
     for op, task, label, rep, var, make in tqdm(jobs, desc="teleop runs", file=log):
         lib = lib2 if task == "2d" else lib3
         assert lib is not None
@@ -372,8 +374,9 @@ def run(args: argparse.Namespace) -> int:
             )
             m = _run_one(lib, human, net, cfg)
             reg = m.pop("_reg")
-            if method == "skill_cpd" and reg is not None and reg.nonrigid_template is not None:
-                if len(timing_cases) < (26 if quick else 60) and op == OPERATORS[0]:
+            if method == "skill_cpd" and reg is not None and op == OPERATORS[0]:
+                switch_cases.append((reg.operator_points, lib.skill(reg.label).trajectory, cfg))
+                if reg.nonrigid_template is not None and len(timing_cases) < (26 if quick else 60):
                     timing_cases.append((reg.operator_points, reg.nonrigid_template))
             rows.append(
                 {
@@ -393,6 +396,17 @@ def run(args: argparse.Namespace) -> int:
             )
     print(f"teleop: timing non-rigid CPD paths on {len(timing_cases)} switches", file=log)
     timing = _time_paths(timing_cases, base, repeats=1 if quick else 3)
+    # registration re-timed on the same inputs, best of 3, to damp the shared-CPU noise
+    stride = 1 if quick else 4
+    best_ms = []
+    for X, xi_a, cfg in switch_cases[::stride]:
+        best = np.inf
+        for _ in range(3):
+            t0 = time.perf_counter()
+            register_skill(X, xi_a, X[-1], cfg)
+            best = min(best, time.perf_counter() - t0)
+        best_ms.append(1e3 * best)
+    best_arr = np.array(best_ms)
     summary = _summarise(rows)
     regs = np.array(
         [r["registration_ms"] for r in rows if r["method"] == "skill_cpd" and r["registration_ms"]]
@@ -402,6 +416,14 @@ def run(args: argparse.Namespace) -> int:
         for r in rows
         if r["method"] == "skill_cpd" and r["n_operator_points"]
     ]
+    best_line = (
+        f"Same registrations re-timed on the same inputs, best of 3 ({best_arr.size} switches, "
+        f"every {stride}th held-out one): median {np.median(best_arr):.1f} ms, p95 "
+        f"{np.percentile(best_arr, 95):.1f} ms, max {best_arr.max():.1f} ms; "
+        f"{100.0 * np.mean(best_arr <= 33.0):.0f} % within 33 ms."
+        if best_arr.size
+        else ""
+    )
     reg_line = (
         f"Registration per switch (rigid + non-rigid when needed + closest step, low-rank "
         f"kernel, {pinned}): median {np.median(regs):.1f} ms, p95 {np.percentile(regs, 95):.1f} "
@@ -436,6 +458,7 @@ def run(args: argparse.Namespace) -> int:
             "",
             *_targets(summary),
             f"- {reg_line}",
+            f"- {best_line}",
             "",
             "## Non-rigid CPD: exact vs accelerated paths",
             "",
@@ -459,6 +482,12 @@ def run(args: argparse.Namespace) -> int:
         "seed": SEED,
         "summary": summary,
         "cpd_paths": timing,
+        "registration_ms_best_of_3": {
+            "median": float(np.median(best_arr)) if best_arr.size else None,
+            "p95": float(np.percentile(best_arr, 95)) if best_arr.size else None,
+            "max": float(best_arr.max()) if best_arr.size else None,
+            "switches": int(best_arr.size),
+        },
         "registration_ms": {
             "median": float(np.median(regs)) if regs.size else None,
             "p95": float(np.percentile(regs, 95)) if regs.size else None,

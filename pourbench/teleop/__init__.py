@@ -52,6 +52,7 @@ from pourbench.teleop.skill_cpd import (
     SkillCPD,
     SkillCPDConfig,
     closest_step,
+    register_skill,
 )
 from pourbench.teleop.skills import Recognition, Skill, SkillLibrary
 
@@ -91,6 +92,7 @@ __all__ = [
     "register_affine",
     "register_nonrigid",
     "register_rigid",
+    "register_skill",
     "task_outage",
     "trajectory_features",
 ]

@@ -436,6 +436,7 @@ def register_nonrigid(
     max_rank: int = 40,
     fgt_eps: float = 1e-6,
     normalize: bool = True,
+    sigma2: float | None = None,
     max_iter: int = 150,
     tol: float = 1e-5,
 ) -> NonRigidResult:
@@ -454,6 +455,8 @@ def register_nonrigid(
         max_rank: at most this many eigenpairs are computed for ``lowrank``.
         fgt_eps: FGT error per unit weight.
         normalize: register zero-mean, unit-RMS copies (then denormalise the result).
+        sigma2: initial mixture variance in the input unit squared (e.g. the final variance
+            of a rigid registration that already aligned ``Y``); default: from the data.
         max_iter: EM iteration cap.
         tol: stop when the relative change of sigma^2 falls below this.
     """
@@ -482,7 +485,10 @@ def register_nonrigid(
     else:
         rank = M
     s2 = _init_s2(Xn, Yn)
+    if sigma2 is not None:
+        s2 = min(s2, check_finite("sigma2", sigma2) / sx**2)
     floor = _S2_FLOOR * max(float(np.var(Xn, axis=0).sum()), 1e-300)
+    s2 = max(s2, floor)
     W = np.zeros((M, D))
     TY = Yn.copy()
     x2 = np.einsum("ij,ij->i", Xn, Xn)

@@ -14,17 +14,21 @@ one of four states:
 * ``handback``: packets are back; ``alpha`` rises by 0.1 per packet (Eq. 5.10) and the
   command is ``(1 - alpha) xi_c + alpha h_t``; at ``alpha = 1`` the state is ``direct``.
 
-Registration (Algorithm 3, mode ``"skill_cpd"``): the skill prefix up to the recognised
-progress is registered rigidly (with scale) onto ``xi_h*`` and the transform applied to the
-whole skill; if the mean distance from ``xi_h*`` to the result exceeds 0.1 cm the rigidly
-registered prefix is registered non-rigidly (``beta = 3``, ``lmbda = 3``) and CPD's
-displacement field, which is defined everywhere, is applied to the whole skill. (The thesis
-registers the complete skill; with a partial operator trajectory that pulls the unmatched
-rest of the skill onto the operator's points, so the field is extrapolated instead.) The
-closest step to the robot's position within ±10 steps of the recognised progress is where
-the skill starts (Eq. 5.9). Mode ``"standard"`` is standard shared autonomy: the same
-machine with the unregistered skill. Mode ``"none"`` never switches (the robot holds still
-while disconnected and jumps back to the operator on reconnection).
+Registration (Algorithm 3, mode ``"skill_cpd"``). The rough disconnection index ``i0`` is
+the operator's number of Δd samples (skill steps are one Δd sample of the demonstrations
+apart). The skill prefix up to ``i0`` + 10 steps is registered rigidly (with scale) onto
+``xi_h*`` and the transform applied to the whole skill; ``i0`` is then divided by the
+recovered scale. If the mean distance from ``xi_h*`` to the registered skill (as a polyline)
+is 0.1 cm or more, the rigidly registered prefix is registered non-rigidly (``beta = 3``,
+``lmbda = 3``, starting from the rigid fit's mixture variance) and CPD's displacement field,
+which is defined everywhere, is applied to the whole skill. (The thesis registers the
+complete skill; with a partial operator trajectory that pulls the unmatched rest of the
+skill onto the operator's points, so the field is extrapolated instead.) The closest step to
+the robot's position within ±10 steps of ``i0`` is where the skill starts (Eq. 5.9).
+
+Mode ``"standard"`` is standard shared autonomy: the same machine with the unregistered
+skill. Mode ``"none"`` never switches (the robot holds still while disconnected and jumps
+back to the operator on reconnection).
 """
 
 from __future__ import annotations
@@ -39,7 +43,14 @@ from pourbench.teleop.cpd import register_nonrigid, register_rigid
 from pourbench.teleop.network import DeadlineDetector
 from pourbench.teleop.skills import SkillLibrary
 
-__all__ = ["MODES", "Registration", "SkillCPD", "SkillCPDConfig", "closest_step"]
+__all__ = [
+    "MODES",
+    "Registration",
+    "SkillCPD",
+    "SkillCPDConfig",
+    "closest_step",
+    "register_skill",
+]
 
 MODES = ("none", "standard", "skill_cpd")
 
@@ -149,6 +160,57 @@ def _mean_nn_distance(A: np.ndarray, B: np.ndarray) -> float:
     return float(np.mean(d.min(axis=1)))
 
 
+def register_skill(
+    X: np.ndarray, xi_a: np.ndarray, robot: np.ndarray, cfg: SkillCPDConfig
+) -> tuple[np.ndarray, str, float, int, np.ndarray | None]:
+    """Algorithm 3: register the skill ``xi_a`` onto the operator's ``xi_h*`` = ``X``.
+
+    Args:
+        X: (N, D) operator trajectory so far, Δd-sampled, m.
+        xi_a: (M, D) skill trajectory, m.
+        robot: (D,) robot position where the skill must start, m.
+        cfg: parameters (``mode="standard"`` skips the registration).
+
+    Returns:
+        ``(xi_c, kind, error, step, nonrigid_template)``: registered skill, ``"rigid"`` /
+        ``"nonrigid"`` / ``"none"``, mean distance from X to ``xi_c`` (m), closest step, and
+        the template given to non-rigid CPD (``None`` if it did not run).
+    """
+    # rough disconnection index: skill steps and operator samples are both ~Δd apart
+    i0 = min(X.shape[0] - 1, xi_a.shape[0] - 1)
+    template = None
+    if cfg.mode == "standard":
+        xi_c, kind, err = xi_a, "none", _mean_nn_distance(X, xi_a)
+    else:
+        # the prefix reaches one window past the rough index, so that the part of the
+        # skill the operator has drawn is inside it even when the rough index is short
+        prefix = xi_a[: max(min(i0 + cfg.window, xi_a.shape[0] - 1) + 1, 2)]
+        rig = register_rigid(X, prefix, w=cfg.cpd_w, tol=cfg.cpd_tol, max_iter=cfg.cpd_max_iter)
+        i0 = min(round((X.shape[0] - 1) / max(rig.s, 1e-9)), xi_a.shape[0] - 1)
+        xi_c = rig.transform(xi_a)
+        err = _mean_nn_distance(X, xi_c)
+        kind = "rigid"
+        if err >= cfg.rigid_error:
+            template = xi_c[: min(i0 + cfg.window, xi_a.shape[0] - 1) + 1]
+            nr = register_nonrigid(
+                X,
+                template,
+                beta=cfg.beta,
+                lmbda=cfg.lmbda,
+                w=cfg.cpd_w,
+                fgt=cfg.fgt,
+                lowrank=cfg.lowrank,
+                sigma2=rig.sigma2,
+                tol=cfg.cpd_tol,
+                max_iter=cfg.cpd_max_iter,
+            )
+            xi_c = nr.transform(xi_c)
+            err = _mean_nn_distance(X, xi_c)
+            kind = "nonrigid"
+    step = closest_step(robot, xi_c, i0, cfg.window)
+    return xi_c, kind, err, step, template
+
+
 class SkillCPD:
     """Shared-autonomy arbitration between the operator and a learnt skill.
 
@@ -208,38 +270,8 @@ class SkillCPD:
         if rec.confidence < cfg.min_confidence:
             return False
         xi_a = self.library.skill(rec.label).trajectory
-        # rough disconnection index: skill steps and operator samples are both ~Δd apart
-        i0 = min(X.shape[0] - 1, xi_a.shape[0] - 1)
         robot = self.position if self.position is not None else X[-1]
-        template = None
-        if cfg.mode == "standard":
-            xi_c, kind, err = xi_a, "none", _mean_nn_distance(X, xi_a)
-        else:
-            # the prefix reaches one window past the rough index, so that the part of the
-            # skill the operator has drawn is inside it even when the rough index is short
-            prefix = xi_a[: max(min(i0 + cfg.window, xi_a.shape[0] - 1) + 1, 2)]
-            rig = register_rigid(X, prefix, w=cfg.cpd_w, tol=cfg.cpd_tol, max_iter=cfg.cpd_max_iter)
-            i0 = min(round((X.shape[0] - 1) / max(rig.s, 1e-9)), xi_a.shape[0] - 1)
-            xi_c = rig.transform(xi_a)
-            err = _mean_nn_distance(X, xi_c)
-            kind = "rigid"
-            if err >= cfg.rigid_error:
-                template = xi_c[: min(i0 + cfg.window, xi_a.shape[0] - 1) + 1]
-                nr = register_nonrigid(
-                    X,
-                    template,
-                    beta=cfg.beta,
-                    lmbda=cfg.lmbda,
-                    w=cfg.cpd_w,
-                    fgt=cfg.fgt,
-                    lowrank=cfg.lowrank,
-                    tol=cfg.cpd_tol,
-                    max_iter=cfg.cpd_max_iter,
-                )
-                xi_c = nr.transform(xi_c)
-                err = _mean_nn_distance(X, xi_c)
-                kind = "nonrigid"
-        step = closest_step(robot, xi_c, i0, cfg.window)
+        xi_c, kind, err, step, template = register_skill(X, xi_a, robot, cfg)
         t2 = time.perf_counter()
         self._skill = xi_c
         seg = np.linalg.norm(np.diff(xi_c, axis=0), axis=1)
