@@ -711,10 +711,12 @@ def velocity_filters(
     """XSPH viscosity, vorticity confinement, cohesion, surface tension, particle friction.
 
     FleX's coefficients are dimensionless; pourbench maps them onto rates as documented in
-    :mod:`pourbench.fluids.solver` (``VISCOSITY_RATE`` etc.), identical for every world.
+    :mod:`pourbench.fluids.solver` (``SolverConfig.viscosity_rate`` etc.), the same for every
+    world.
     """
     i = wp.tid()
     w = world[i]
+    vort_on = vorticity[w] > 0.0
     xi = x[i]
     vi = v[i]
     wsum = float(0.0)
@@ -733,7 +735,8 @@ def velocity_filters(
         wij = poly6(d * d, h)
         wsum += wij
         vavg += v[j] * wij
-        eta += spiky_grad(r, d, h, grad_c) * wp.length(omega[j])
+        if vort_on:
+            eta += spiky_grad(r, d, h, grad_c) * wp.length(omega[j])
         if d > 1.0e-9:
             coh -= (r / d) * cohesion_spline(d, h)
             if d < spacing:
@@ -749,7 +752,7 @@ def velocity_filters(
         kv = visc_rate * viscosity[w]
         dv += (vavg / wsum - vi) * (kv / (1.0 + kv))
     eta_len = wp.length(eta)
-    if eta_len > 1.0e-9 and vorticity[w] > 0.0:
+    if eta_len > 1.0e-9 and vort_on:
         dv += wp.cross(eta / eta_len, omega[i]) * (vorticity[w] * dt)
     # cohesion and curvature sums are normalised by their full-lattice magnitudes (rest_norm)
     dv += coh * (cohesion[w] * coh_accel * dt / coh_norm)

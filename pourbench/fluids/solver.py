@@ -372,6 +372,10 @@ class PBFSolver:
             a: wp.array([getattr(liq, a) for liq in self.liquids], dtype=float, device=dev)
             for a in attrs
         }
+        # curl and colour-field normals feed only vorticity confinement and surface tension
+        self._needs_curl_and_normals = any(
+            liq.vorticity_confinement > 0 or liq.surface_tension > 0 for liq in self.liquids
+        )
         self.mass = wp.array(
             [liq.density * cfg.spacing**3 for liq in self.liquids], dtype=float, device=dev
         )
@@ -586,13 +590,14 @@ class PBFSolver:
             outputs=[self.v, self.x],
             device=dev,
         )
-        wp.launch(
-            K.vorticity_and_normals,
-            n,
-            inputs=[self.x, self.v, self.nbr, self.nbr_count, cfg.h, self.grad_c],
-            outputs=[self.omega, self.normal],
-            device=dev,
-        )
+        if self._needs_curl_and_normals:
+            wp.launch(
+                K.vorticity_and_normals,
+                n,
+                inputs=[self.x, self.v, self.nbr, self.nbr_count, cfg.h, self.grad_c],
+                outputs=[self.omega, self.normal],
+                device=dev,
+            )
         wp.launch(
             K.velocity_filters,
             n,
