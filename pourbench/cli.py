@@ -12,7 +12,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-BENCH_SUITES: tuple[str, ...] = ("fluids", "teleop", "planning")
+BENCH_SUITES: tuple[str, ...] = ("fluids", "teleop", "planning", "env")
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:

@@ -25,9 +25,14 @@ def test_pd_control_law() -> None:
     pd.act(_obs(20.0, 100.0, 1.2))  # flow onset
     a = pd.act(_obs(25.0, 100.0, 1.2))  # ~125 g/s: far above the desired flow: hold
     assert a[0] == 0.0
-    a = pd.act(_obs(99.0, 100.0, 1.2))  # predicted past the target: full speed back
+    a = pd.act(_obs(90.0, 100.0, 1.2))  # predicted past the target: hold
+    assert a[0] == 0.0
+    for _ in range(5):  # the stream stopped short: pour again
+        a = pd.act(_obs(90.0, 100.0, 1.2))
+    assert a[0] > 0.0
+    a = pd.act(_obs(98.5, 100.0, 1.2))  # within the tolerance: full speed back
     assert a[0] == -1.0
-    a = pd.act(_obs(99.0, 100.0, 1.0))
+    a = pd.act(_obs(97.0, 100.0, 1.0))
     assert a[0] == -1.0  # stays in the stopping phase
     pd.reset()
     assert pd.act(_obs(0.0, 100.0, 0.0))[0] == 1.0

@@ -213,3 +213,20 @@ def test_episode_ends_upright_with_algorithm5_bonus() -> None:
     assert rewards[-1] == pytest.approx(bonus)
     assert all(r in (0.0, pytest.approx(-1 / env.config.max_steps)) for r in rewards[:-1])
     assert info["is_success"] == (info["error_g"] <= 10.0)
+
+
+def test_rerun_recording(tmp_path) -> None:
+    import rerun as rr
+
+    empty = tmp_path / "empty.rrd"
+    rec = rr.RecordingStream("pourbench")
+    rec.save(empty)
+    rec.flush()
+    path = tmp_path / "pour.rrd"
+    env = PourEnv(record_path=str(path), max_steps=5)
+    env.reset(seed=0)
+    env.step(np.array([1.0, 1.0]))
+    n = env.batch.solver.num_particles
+    env.close()
+    # two frames of particle positions (3 float32 each) beyond an empty recording
+    assert path.stat().st_size > empty.stat().st_size + 2 * 12 * n

@@ -9,9 +9,10 @@ above the receiving container, then
 * flow estimate ``q`` (g/s): the measured weight's rate of change, low-passed;
 * predicted weight ``ŵ = w + q·lead`` (compensates the 1 Hz filter's delay);
 * desired flow ``q* = clip(gain·(target − ŵ), min_flow, max_flow)``;
-* ``ω = kp·(q* − q) − kd·dq/dt``, only forward while ``ŵ`` is below the target, full speed
-  back once it is reached (the handler itself forbids going back before the measured weight
-  reaches the target minus its tolerance, so the controller holds the tilt meanwhile).
+* ``ω = kp·(q* − q) − kd·dq/dt``, only forward, while ``ŵ`` is below the target;
+* hold the tilt once ``ŵ`` reaches the target (Algorithm 4 refuses to turn back before the
+  measured weight reaches target − tolerance), and turn back at full speed once the measured
+  weight is there. If the stream stops short of it, the first rule resumes pouring.
 
 Works on batches: ``act(obs)`` takes (n, 12) or (12,) observations.
 """
@@ -39,6 +40,7 @@ class PDConfig:
         gain: desired flow per gram still to pour, 1/s.
         min_flow, max_flow: bounds of the desired flow, g/s.
         lead: prediction horizon of the weight, s (filter delay plus stopping time).
+        tolerance_g: the environment's Algorithm 4 tolerance ΔL_w, g.
         flow_smoothing: weight of the newest flow sample in its running average.
     """
 
@@ -53,6 +55,7 @@ class PDConfig:
     max_flow: float = 30.0
     lead: float = 0.4
     flow_smoothing: float = 0.5
+    tolerance_g: float = 2.0
 
 
 class PDPourer:
@@ -88,9 +91,10 @@ class PDPourer:
         self.last_w, self.flow = w.copy(), q
         predicted = w + np.maximum(q, 0.0) * c.lead
         self.onset |= w >= c.detect_g
-        self.done |= predicted >= target
+        self.done |= self.onset & (w >= target - c.tolerance_g)
         q_star = np.clip(c.gain * (target - predicted), c.min_flow, c.max_flow)
         pour = np.clip(c.kp * (q_star - q) - c.kd * dq, 0.0, c.search_rate)
+        pour = np.where(predicted >= target, 0.0, pour)
         omega = np.where(tilt < c.fast_tilt, 1.0, np.where(self.onset, pour, c.search_rate))
         omega = np.where(self.done, -1.0, omega)
         # translate toward the receiving container until the handler starts rotating

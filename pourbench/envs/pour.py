@@ -74,13 +74,17 @@ class PourEnv(gym.Env):
 
     Args:
         render_mode: None or "rgb_array" (MuJoCo offscreen renderer, particles as spheres).
+        record_path: if given, a rerun ``.rrd`` recording of the liquid and containers is
+            written there, one frame per reset and step.
         **kwargs: fields of :class:`~pourbench.envs.core.PourConfig` (e.g. ``liquid="water"``,
             ``action_mode="free"``, ``container_set="novel"``, ``solver=SolverConfig(...)``).
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
 
-    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self, render_mode: str | None = None, record_path: str | None = None, **kwargs: Any
+    ) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
@@ -90,6 +94,11 @@ class PourEnv(gym.Env):
         self.observation_space = observation_space()
         self.action_space = action_space()
         self._renderer: mujoco.Renderer | None = None
+        self._recorder = None
+        if record_path is not None:
+            from pourbench.fluids.record import FluidRecorder
+
+            self._recorder = FluidRecorder(record_path, self.batch.solver)
 
     def set_lesson(self, k: int) -> None:
         """Draw liquids from curriculum lesson ``k`` at later resets (when ``liquid`` is None)."""
@@ -104,11 +113,15 @@ class PourEnv(gym.Env):
         info = _world_info(self.batch.measure(), 0)
         info.update(collided=False, sim_diverged=False, is_success=False)
         info["average_error_g"] = float(self.batch.history.average()[0])
+        if self._recorder is not None:
+            self._recorder.log()
         return self.batch.observe()[0], info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         a = np.asarray(action, dtype=float).reshape(1, 2)
         obs, rew, term, trunc, info = self.batch.step(a)
+        if self._recorder is not None:
+            self._recorder.log()
         return obs[0], float(rew[0]), bool(term[0]), bool(trunc[0]), _world_info(info, 0)
 
     def render(self) -> np.ndarray | None:
@@ -119,6 +132,9 @@ class PourEnv(gym.Env):
         return render_world(self.batch, 0, self._renderer)
 
     def close(self) -> None:
+        if self._recorder is not None:
+            self._recorder.close()
+            self._recorder = None
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
