@@ -20,7 +20,7 @@ apart). The skill prefix up to ``i0`` + 10 steps is registered rigidly (with sca
 ``xi_h*`` and the transform applied to the whole skill; ``i0`` is then divided by the
 recovered scale. If the mean distance from ``xi_h*`` to the registered skill (as a polyline)
 is 0.1 cm or more, the rigidly registered prefix is registered non-rigidly (``beta = 3``,
-``lmbda = 3``, starting from the rigid fit's mixture variance) and CPD's displacement field,
+``lmbda = 3``) and CPD's displacement field,
 which is defined everywhere, is applied to the whole skill. (The thesis registers the
 complete skill; with a partial operator trajectory that pulls the unmatched rest of the
 skill onto the operator's points, so the field is extrapolated instead.) The closest step to
@@ -200,7 +200,6 @@ def register_skill(
                 w=cfg.cpd_w,
                 fgt=cfg.fgt,
                 lowrank=cfg.lowrank,
-                sigma2=rig.sigma2,
                 tol=cfg.cpd_tol,
                 max_iter=cfg.cpd_max_iter,
             )
