@@ -230,3 +230,23 @@ def test_rerun_recording(tmp_path) -> None:
     env.close()
     # two frames of particle positions (3 float32 each) beyond an empty recording
     assert path.stat().st_size > empty.stat().st_size + 2 * 12 * n
+
+
+def test_novel_containers_are_observed() -> None:
+    from pourbench.containers import container_names, get_container
+
+    env = PourEnv(container_set="novel", liquid="water")
+    seen = set()
+    for seed in range(4):
+        obs, info = env.reset(seed=seed)
+        c = get_container(info["container"])
+        assert info["container"] in container_names("novel")
+        assert obs[5] == pytest.approx(c.diameter) and obs[6] == pytest.approx(c.depth)
+        seen.add(info["container"])
+    assert len(seen) > 1
+    obs, info = env.reset(seed=0, options={"container": "mug", "target_g": 80.0})
+    assert info["container"] == "mug" and obs[8] == pytest.approx(80.0)
+    obs, *_ = env.step(np.array([1.0, 1.0]))
+    assert np.all(np.isfinite(obs))
+    with pytest.raises(ValueError, match="mug"):
+        env.reset(options={"container": "training"})  # not in the novel set

@@ -10,9 +10,11 @@ above the receiving container, then
 * predicted weight ``ŵ = w + q·lead`` (compensates the 1 Hz filter's delay);
 * desired flow ``q* = clip(gain·(target − ŵ), min_flow, max_flow)``;
 * ``ω = kp·(q* − q) − kd·dq/dt``, only forward, while ``ŵ`` is below the target;
-* hold the tilt once ``ŵ`` reaches the target (Algorithm 4 refuses to turn back before the
-  measured weight reaches target − tolerance), and turn back at full speed once the measured
-  weight is there. If the stream stops short of it, the first rule resumes pouring.
+* hold the tilt once ``ŵ`` has reached the target (Algorithm 4 refuses to turn back before
+  the measured weight reaches target − tolerance), and turn back at full speed while the
+  smoothed measured weight is there. If the stream stops short of it (no rise of the
+  weight for ``stall_time``), return at full rate to the largest tilt reached so far (noise
+  on the weight can let Algorithm 4 turn the container back early) and pour again.
 
 Works on batches: ``act(obs)`` takes (n, 12) or (12,) observations.
 """
@@ -41,6 +43,9 @@ class PDConfig:
         min_flow, max_flow: bounds of the desired flow, g/s.
         lead: prediction horizon of the weight, s (filter delay plus stopping time).
         tolerance_g: the environment's Algorithm 4 tolerance ΔL_w, g.
+        weight_smoothing: weight of the newest sample in the smoothed weight.
+        stall_gain_g: rise of the smoothed weight's maximum that shows the stream still runs, g.
+        stall_time: time without such a rise, short of the target, before pouring again, s.
         flow_smoothing: weight of the newest flow sample in its running average.
     """
 
@@ -56,6 +61,9 @@ class PDConfig:
     lead: float = 0.4
     flow_smoothing: float = 0.5
     tolerance_g: float = 2.0
+    weight_smoothing: float = 0.3
+    stall_gain_g: float = 1.0
+    stall_time: float = 1.0
 
 
 class PDPourer:
@@ -67,7 +75,12 @@ class PDPourer:
         self.last_w = np.full(self.n, np.nan)
         self.flow = np.zeros(self.n)
         self.onset = np.zeros(self.n, bool)
-        self.done = np.zeros(self.n, bool)
+        self.hold = np.zeros(self.n, bool)
+        self.smooth_w = np.zeros(self.n)
+        self.best_w = np.zeros(self.n)
+        self.stalled = np.zeros(self.n)
+        self.max_tilt = np.zeros(self.n)
+        self.catchup = np.zeros(self.n, bool)
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         """Forget the history of every world (or of those in ``mask``)."""
@@ -75,7 +88,12 @@ class PDPourer:
         self.last_w[m] = np.nan
         self.flow[m] = 0.0
         self.onset[m] = False
-        self.done[m] = False
+        self.hold[m] = False
+        self.smooth_w[m] = 0.0
+        self.best_w[m] = 0.0
+        self.stalled[m] = 0.0
+        self.max_tilt[m] = 0.0
+        self.catchup[m] = False
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Actions (n, 2) ``(ω, r)`` for observations (n, 12) (or (2,) for (12,))."""
@@ -89,15 +107,26 @@ class PDPourer:
         q = (1 - c.flow_smoothing) * q_old + c.flow_smoothing * q_new
         dq = (q - q_old) / c.control_dt
         self.last_w, self.flow = w.copy(), q
+        self.smooth_w += c.weight_smoothing * (w - self.smooth_w)
         predicted = w + np.maximum(q, 0.0) * c.lead
         self.onset |= w >= c.detect_g
-        self.done |= self.onset & (w >= target - c.tolerance_g)
+        self.hold |= self.onset & (predicted >= target)
+        back = self.onset & (self.smooth_w >= target - c.tolerance_g)
+        rising = self.smooth_w > self.best_w + c.stall_gain_g
+        self.best_w = np.where(rising, self.smooth_w, self.best_w)
+        self.stalled = np.where(self.hold & ~back & ~rising, self.stalled + 1, 0)
+        resume = self.stalled * c.control_dt >= c.stall_time
+        self.hold &= ~resume
+        self.stalled = np.where(resume, 0, self.stalled)
+        self.max_tilt = np.maximum(self.max_tilt, tilt)
+        self.catchup = (self.catchup | resume) & (tilt < self.max_tilt - 0.05) & ~self.hold
         q_star = np.clip(c.gain * (target - predicted), c.min_flow, c.max_flow)
         pour = np.clip(c.kp * (q_star - q) - c.kd * dq, 0.0, c.search_rate)
-        pour = np.where(predicted >= target, 0.0, pour)
         omega = np.where(tilt < c.fast_tilt, 1.0, np.where(self.onset, pour, c.search_rate))
-        omega = np.where(self.done, -1.0, omega)
+        omega = np.where(self.catchup, 1.0, omega)
+        omega = np.where(self.hold, 0.0, omega)
+        omega = np.where(back, -1.0, omega)
         # translate toward the receiving container until the handler starts rotating
-        r = np.where((tilt <= 1e-6) & ~self.done, 1.0, 0.0)
+        r = np.where((tilt <= 1e-6) & ~self.onset, 1.0, 0.0)
         a = np.stack([omega, r], axis=1).astype(np.float32)
         return a[0] if single else a

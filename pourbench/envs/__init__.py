@@ -1,7 +1,9 @@
 """Gymnasium environments: ``pourbench/Pour-v0`` (single and vector).
 
-``import pourbench`` registers the ids (also reachable through the ``gymnasium.envs`` entry
-point). The single env is the batch of one of the vector env's :class:`PourBatch`.
+``import pourbench`` registers the ids (Gymnasium 1.x does not load ``gymnasium.envs`` entry
+points by itself; without the import, ``gymnasium.make("pourbench:pourbench/Pour-v0")``
+imports the package first). The single env is the batch of one of the vector env's
+:class:`PourBatch`.
 """
 
 from __future__ import annotations
@@ -11,7 +13,9 @@ from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, handle_act
 from pourbench.envs.core import PourBatch, PourConfig, default_solver_config
 from pourbench.envs.curriculum import Lesson, lesson_at, load_curriculum
 from pourbench.envs.observation import WeightFilter
+from pourbench.envs.pour import PourEnv
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
+from pourbench.envs.vector import PourVectorEnv
 
 ENV_IDS: tuple[str, ...] = ("pourbench/Pour-v0",)
 
@@ -24,6 +28,8 @@ __all__ = [
     "Lesson",
     "PourBatch",
     "PourConfig",
+    "PourEnv",
+    "PourVectorEnv",
     "RewardConfig",
     "WeightFilter",
     "default_solver_config",
