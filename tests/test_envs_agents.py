@@ -35,6 +35,9 @@ def test_pd_control_law() -> None:
     assert a[0] == -1.0
     a = pd.act(_obs(97.5, 100.0, 1.0))  # one low (noisy) sample does not stop the return
     assert a[0] == -1.0
+    for _ in range(25):  # but a weight that stays clearly short: back to the pouring tilt
+        a = pd.act(_obs(93.0, 100.0, 1.0))
+    assert a[0] == 1.0
     pd.reset()
     assert pd.act(_obs(0.0, 100.0, 0.0))[0] == 1.0
 

@@ -11,10 +11,11 @@ above the receiving container, then
 * desired flow ``q* = clip(gain·(target − ŵ), min_flow, max_flow)``;
 * ``ω = kp·(q* − q) − kd·dq/dt``, only forward, while ``ŵ`` is below the target;
 * hold the tilt once ``ŵ`` has reached the target (Algorithm 4 refuses to turn back before
-  the measured weight reaches target − tolerance), and turn back at full speed while the
-  smoothed measured weight is there. If the stream stops short of it (no rise of the
-  weight for ``stall_time``), return at full rate to the largest tilt reached so far (noise
-  on the weight can let Algorithm 4 turn the container back early) and pour again.
+  the measured weight reaches target − tolerance), and turn back at full speed once the
+  measured weight is there. If the stream stops short of it (no rise of the smoothed weight
+  for ``stall_time``), or the return was triggered by a noisy sample (the smoothed weight
+  stays ``short_margin_g`` below), return at full rate to the largest tilt reached so far
+  and pour again.
 
 Works on batches: ``act(obs)`` takes (n, 12) or (12,) observations.
 """
@@ -46,6 +47,8 @@ class PDConfig:
         weight_smoothing: weight of the newest sample in the smoothed weight.
         stall_gain_g: rise of the smoothed weight's maximum that shows the stream still runs, g.
         stall_time: time without such a rise, short of the target, before pouring again, s.
+        short_margin_g: how far below target − tolerance the smoothed weight must stay (for
+            ``stall_time``) to undo a return triggered by a noisy sample, g.
         flow_smoothing: weight of the newest flow sample in its running average.
     """
 
@@ -64,6 +67,7 @@ class PDConfig:
     weight_smoothing: float = 0.3
     stall_gain_g: float = 1.0
     stall_time: float = 1.0
+    short_margin_g: float = 2.0
 
 
 class PDPourer:
@@ -81,6 +85,8 @@ class PDPourer:
         self.stalled = np.zeros(self.n)
         self.max_tilt = np.zeros(self.n)
         self.catchup = np.zeros(self.n, bool)
+        self.back = np.zeros(self.n, bool)
+        self.short = np.zeros(self.n)
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         """Forget the history of every world (or of those in ``mask``)."""
@@ -94,6 +100,8 @@ class PDPourer:
         self.stalled[m] = 0.0
         self.max_tilt[m] = 0.0
         self.catchup[m] = False
+        self.back[m] = False
+        self.short[m] = 0.0
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Actions (n, 2) ``(ω, r)`` for observations (n, 12) (or (2,) for (12,))."""
@@ -111,11 +119,19 @@ class PDPourer:
         predicted = w + np.maximum(q, 0.0) * c.lead
         self.onset |= w >= c.detect_g
         self.hold |= self.onset & (predicted >= target)
-        back = self.onset & (self.smooth_w >= target - c.tolerance_g)
+        # turn back once the measured weight reaches target − tolerance (when Algorithm 4
+        # allows it); undo that if the smoothed weight then stays clearly short of it
+        self.back |= self.onset & (w >= target - c.tolerance_g)
+        short = self.back & (self.smooth_w < target - c.tolerance_g - c.short_margin_g)
+        self.short = np.where(short, self.short + 1, 0)
+        undo = self.short * c.control_dt >= c.stall_time
+        self.back &= ~undo
+        self.short = np.where(undo, 0, self.short)
+        back = self.back
         rising = self.smooth_w > self.best_w + c.stall_gain_g
         self.best_w = np.where(rising, self.smooth_w, self.best_w)
         self.stalled = np.where(self.hold & ~back & ~rising, self.stalled + 1, 0)
-        resume = self.stalled * c.control_dt >= c.stall_time
+        resume = (self.stalled * c.control_dt >= c.stall_time) | undo
         self.hold &= ~resume
         self.stalled = np.where(resume, 0, self.stalled)
         self.max_tilt = np.maximum(self.max_tilt, tilt)
