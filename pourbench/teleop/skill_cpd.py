@@ -20,11 +20,11 @@ apart). The skill prefix up to ``i0`` + 10 steps is registered rigidly (with sca
 ``xi_h*`` and the transform applied to the whole skill; ``i0`` is then divided by the
 recovered scale. If the mean distance from ``xi_h*`` to the registered skill (as a polyline)
 is 0.1 cm or more, the rigidly registered prefix is registered non-rigidly (``beta = 3``,
-``lmbda = 3``) and CPD's displacement field,
-which is defined everywhere, is applied to the whole skill. (The thesis registers the
-complete skill; with a partial operator trajectory that pulls the unmatched rest of the
-skill onto the operator's points, so the field is extrapolated instead.) The closest step to
-the robot's position within ±10 steps of ``i0`` is where the skill starts (Eq. 5.9).
+``lmbda = 3``) and CPD's displacement field, which is defined everywhere, is applied to the
+whole skill. (The thesis registers the complete skill; with a partial operator trajectory
+that pulls the unmatched rest of the skill onto the operator's points, so the field is
+extrapolated instead.) The closest step to the robot's position within ±10 steps of ``i0``
+is where the skill starts (Eq. 5.9).
 
 Mode ``"standard"`` is standard shared autonomy: the same machine with the unregistered
 skill. Mode ``"none"`` never switches (the robot holds still while disconnected and jumps
