@@ -24,7 +24,8 @@ is 0.1 cm or more, the rigidly registered prefix is registered non-rigidly (``be
 whole skill. (The thesis registers the complete skill; with a partial operator trajectory
 that pulls the unmatched rest of the skill onto the operator's points, so the field is
 extrapolated instead.) The closest step to the robot's position within ±10 steps of ``i0``
-is where the skill starts (Eq. 5.9).
+(Eq. 5.9) locates the start; the skill starts at the robot's projection onto the segments
+next to that step, as it is followed continuously by arc length.
 
 Mode ``"standard"`` is standard shared autonomy: the same machine with the unregistered
 skill. Mode ``"none"`` never switches (the robot holds still while disconnected and jumps
@@ -146,6 +147,25 @@ def closest_step(point: np.ndarray, traj: np.ndarray, centre: int, window: int) 
         lo, hi = max(0, traj.shape[0] - 1 - int(window)), traj.shape[0]
     d = np.linalg.norm(traj[lo:hi] - point, axis=1)
     return lo + int(np.argmin(d))
+
+
+def _project_arc_length(point: np.ndarray, traj: np.ndarray, cum: np.ndarray, step: int) -> float:
+    """Arc length (m) of the projection of ``point`` onto the two segments around ``step``.
+
+    The skill is followed continuously by arc length, so it starts at the foot of the
+    perpendicular from the robot rather than at the nearest vertex (steps are ~Δd apart).
+    """
+    best_d, best_s = np.inf, float(cum[step])
+    for j in (step - 1, step):
+        if j < 0 or j + 1 >= traj.shape[0]:
+            continue
+        seg = traj[j + 1] - traj[j]
+        L2 = float(seg @ seg)
+        u = 0.0 if L2 <= 0.0 else float(np.clip((point - traj[j]) @ seg / L2, 0.0, 1.0))
+        d = float(np.linalg.norm(traj[j] + u * seg - point))
+        if d < best_d:
+            best_d, best_s = d, float(cum[j] + u * (cum[j + 1] - cum[j]))
+    return best_s
 
 
 def _mean_nn_distance(A: np.ndarray, B: np.ndarray) -> float:
@@ -275,7 +295,7 @@ class SkillCPD:
         self._skill = xi_c
         seg = np.linalg.norm(np.diff(xi_c, axis=0), axis=1)
         self._cum = np.concatenate([[0.0], np.cumsum(seg)])
-        self._s = float(self._cum[step])
+        self._s = _project_arc_length(robot, xi_c, self._cum, step)
         self.registrations.append(
             Registration(
                 rec.label, rec.confidence, kind, err, step, t2 - t1, t1 - t0, xi_c, template, X
