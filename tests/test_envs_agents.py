@@ -67,6 +67,17 @@ def test_sb3_adapter() -> None:
     for info in infos:
         assert info["terminal_observation"].shape == (12,)
         assert info["TimeLimit.truncated"]
+    # one world ends (a diverged simulation), the other goes on
+    solver = venv.venv.batch.solver
+    x = solver.positions()
+    x[solver.world_slice(0)][:3] = np.nan
+    solver.x.assign(x.astype(np.float32))
+    venv.step_async(np.zeros((2, 2), np.float32))
+    obs, _, done, infos = venv.step_wait()
+    assert done.tolist() == [True, False]
+    assert infos[0]["sim_diverged"] and infos[0]["TimeLimit.truncated"]
+    assert "terminal_observation" not in infos[1] and not infos[1]["sim_diverged"]
+    assert np.all(np.isfinite(obs))
     model = PPO("MlpPolicy", venv, n_steps=4, batch_size=8, n_epochs=1, seed=0, device="cpu")
     model.learn(total_timesteps=8)
     action, _ = model.predict(obs, deterministic=True)

@@ -47,8 +47,12 @@ class SB3PourVecEnv(VecEnv):
         done = term | trunc
         infos: list[dict[str, Any]] = []
         for k in range(self.num_envs):
-            src = info.get("final_info", info) if done[k] else info
-            d = {key: src[key][k] for key in src if not key.startswith("_")}
+            src = info["final_info"] if done[k] else info
+            d = {
+                key: v[k]
+                for key, v in src.items()
+                if not key.startswith("_") and key not in ("final_obs", "final_info")
+            }
             if done[k]:
                 d["terminal_observation"] = info["final_obs"][k]
                 d["TimeLimit.truncated"] = bool(trunc[k] and not term[k])
