@@ -24,15 +24,15 @@ DT = SolverConfig().dt
 
 
 def check_rest(device: str = "cpu") -> None:
-    """200 g of water filled into a cup, after 1 s: bulk density within 2 % of rest, the
-    liquid still (99 % of particles below 2 cm/s, none above 3 cm/s: a few free-surface
-    particles at the wall keep a residual jitter of ~2.2 cm/s, see the fluids leaderboard),
-    and the liquid as tall as 200 ml of water at 1000 kg/m^3 needs (within 5 %)."""
+    """200 g of water filled into a cup, after 1 s: the density constraint holds in the bulk
+    within 2 %, the mass per volume in a probe inside the liquid is within 5 % of 1000 kg/m^3,
+    and the liquid is still: 99 % of particles below 2 cm/s, none above 3 cm/s (a few
+    free-surface particles keep a jitter of ~2.5 cm/s; the issue asks ≤ 2 cm/s for all)."""
     r = rest_in_cup(200.0, 1.0, device)
     assert r.density_error <= 0.02
-    assert r.p99_speed <= 0.02, f"p99 speed {r.p99_speed:.4f} m/s"
-    assert r.max_speed <= 0.03, f"max speed {r.max_speed:.4f} m/s after 1 s"
     assert r.bulk_density == pytest.approx(1000.0, rel=0.05)
+    assert r.p99_speed <= 0.02, f"p99 speed {r.p99_speed:.4f} m/s after 1 s"
+    assert r.max_speed <= 0.03, f"max speed {r.max_speed:.4f} m/s after 1 s"
 
 
 def test_rest_settles_to_rest_density() -> None:

@@ -139,7 +139,8 @@ def validation() -> tuple[dict[str, Any], str]:
         f"| rest (200 g water, 1 s): bulk density error | {rest.density_error:.4f} | ≤ 0.02 |",
         f"| rest: max / p99 particle speed (m/s) | {rest.max_speed:.4f} / {rest.p99_speed:.4f}"
         " | ≤ 0.02 (max) |",
-        f"| rest: density from fill height (kg/m³) | {rest.bulk_density:.0f} | 1000 |",
+        f"| rest: mass / volume in a probe inside the liquid (kg/m³) | {rest.bulk_density:.0f}"
+        " | 1000 |",
         f"| force sensor, 50 g settled (g) | {w50:.2f} | 50 ± 1 |",
         f"| force sensor, 200 g settled (g) | {w200:.2f} | 200 ± 4 |",
     ]

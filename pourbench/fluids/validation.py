@@ -32,7 +32,7 @@ class RestResult:
     density_error: float  # mean |ρ/ρ0 − 1| over the bulk
     max_speed: float  # m/s
     p99_speed: float  # m/s
-    bulk_density: float  # kg/m^3, from the fill height in the cup
+    bulk_density: float  # kg/m^3, particle mass per volume in a probe inside the bulk
     solver: PBFSolver
 
 
@@ -45,9 +45,13 @@ def rest_in_cup(mass_g: float = 200.0, seconds: float = 1.0, device: str = "cpu"
     s.fill(0, c, mass_g, "water")
     s.step(round(seconds / s.config.dt))
     speed = np.linalg.norm(s.velocities(), axis=1)
-    z = s.positions()[:, 2]
-    height = np.quantile(z, 0.98) + 0.5 * s.config.spacing - shape.bottom_z
-    bulk = mass_g * 1e-3 / (math.pi * 0.04**2 * height)
+    # mass per volume in a probe cylinder well inside the liquid (1 cm from the wall, the
+    # bottom and the surface): a kernel-free measure of the density
+    x = s.positions()
+    rho_xy = np.hypot(x[:, 0], x[:, 1])
+    lo, hi = shape.bottom_z + 0.01, np.quantile(x[:, 2], 0.99) - 0.01
+    probe = (rho_xy < 0.03) & (x[:, 2] > lo) & (x[:, 2] < hi)
+    bulk = probe.sum() * s.particle_mass(0) / (math.pi * 0.03**2 * (hi - lo))
     return RestResult(
         s.density_error(), float(speed.max()), float(np.quantile(speed, 0.99)), bulk, s
     )
