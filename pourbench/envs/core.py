@@ -37,7 +37,7 @@ from pourbench.fluids import (
     liquid_names,
     liquid_profile,
 )
-from pourbench.fluids.solver import container_lattice, shape_kind
+from pourbench.fluids.solver import container_lattice
 from pourbench.scene import TABLE_HEIGHT, body_clearance, build_pour_scene
 
 CONTAINER_SETS: tuple[str, ...] = ("training", "novel")
@@ -232,9 +232,9 @@ class PourBatch:
         mid = self.mocap_id[self.worlds[world].container]
         d.mocap_pos[mid] = pos
         d.mocap_quat[mid] = quat
-        # the collider pose is read by the solver at its next step (swept from the last one)
-        self.solver.colliders[self.pour_col[world]].pose = np.array(
-            [*pos, quat[1], quat[2], quat[3], quat[0]]
+        # the solver sweeps the collider from its last step's pose to this one
+        self.solver.set_collider_poses(
+            [self.pour_col[world]], np.array([[*pos, quat[1], quat[2], quat[3], quat[0]]])
         )
 
     # ----------------------------------------------------------------------------- reset
@@ -302,10 +302,7 @@ class PourBatch:
         mujoco.mj_forward(self.model, d)
         self.coupling.sync()
         # liquid
-        # swap the pouring collider's shell; clear_world marks the solver for re-upload
-        col = self.solver.colliders[self.pour_col[world]]
-        col.kind, params = shape_kind(get_container(name).shape)
-        col.params, col.shape = np.asarray(params, np.float32).ravel(), get_container(name).shape
+        self.solver.set_container_shape(self.pour_col[world], get_container(name).shape)
         self.solver.clear_world(world)
         self.solver.set_liquid(world, liquid)
         n = self.solver.fill(world, self.pour_col[world], initial)

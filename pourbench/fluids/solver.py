@@ -192,6 +192,7 @@ class PBFSolver:
         self._v = np.zeros((0, 3), np.float32)
         self._world = np.zeros(0, np.int32)
         self._dirty = True
+        self._poses_pending = False
         self.time = 0.0
         self.steps = 0
 
@@ -430,15 +431,17 @@ class PBFSolver:
         self.col_pose = new
         coms = np.array([c.com for c in cols], np.float32)
         self.col_com = wp.array(coms, dtype=wp.vec3, device=self.device)
+        self._poses_pending = False
 
     def set_collider_poses(
         self, indices: list[int], poses: np.ndarray, com: np.ndarray | None = None
     ) -> None:
         """Set the world poses (n, 7: x y z qx qy qz qw) of colliders ``indices``.
 
-        Call once per step, before :meth:`step`, with the colliders' end-of-step poses; the
-        poses they had become the start-of-step poses of the swept collision. ``com`` (n, 3)
-        is the point each collider's reaction torque is taken about (its body's CoM).
+        Set them before :meth:`step` to the colliders' end-of-step poses (the last call before
+        a step counts); the poses they had at the previous step become the start-of-step
+        poses of the swept collision. ``com`` (n, 3) is the point each collider's reaction
+        torque is taken about (its body's CoM).
         """
         poses = np.asarray(poses, float).reshape(len(indices), 7)
         if not np.all(np.isfinite(poses)):
@@ -447,8 +450,16 @@ class PBFSolver:
             self.colliders[i].pose = poses[k].copy()
             if com is not None:
                 self.colliders[i].com = np.asarray(com[k], float).copy()
-        if not self._dirty:
-            self._upload_poses()
+        self._poses_pending = True  # uploaded at the next step, so repeated calls are fine
+
+    def set_container_shape(self, collider: int, shape: ContainerShape) -> None:
+        """Replace a container collider's shell (e.g. a new pouring container on reset)."""
+        c = self.colliders[collider]
+        if c.shape is None:
+            raise InvalidParameterError(f"collider {collider} is not a container shell")
+        c.kind, c.params = shape_kind(shape)
+        c.shape = shape
+        self._dirty = True
 
     # --------------------------------------------------------------------------- step
 
@@ -483,6 +494,8 @@ class PBFSolver:
 
     def _step_once(self) -> None:
         cfg, dev, n = self.config, self.device, self.n
+        if self._poses_pending:
+            self._upload_poses()
         if n > 0 and cfg.reorder_every > 0 and self.steps % cfg.reorder_every == 0:
             self._reorder()
         self.body_force.zero_()
