@@ -479,6 +479,25 @@ def collider_sdf(
 # --------------------------------------------------------------------------- collisions
 
 
+@wp.func
+def add_reaction(
+    body: int,
+    corr: wp.vec3,
+    point: wp.vec3,
+    com: wp.vec3,
+    m: float,
+    dt: float,
+    body_force: wp.array(dtype=wp.vec3),
+    body_torque: wp.array(dtype=wp.vec3),
+):
+    """Sum the reaction of a collision correction ``corr`` (m) on a body: −m Δx / dt², with
+    its torque about the body's centre of mass. Bodies with slot −1 take no reaction."""
+    if body >= 0:
+        f = corr * (-m / (dt * dt))
+        wp.atomic_add(body_force, body, f)
+        wp.atomic_add(body_torque, body, wp.cross(point - com, f))
+
+
 @wp.kernel
 def project_colliders(
     p: wp.array(dtype=wp.vec3),
@@ -516,11 +535,9 @@ def project_colliders(
             push[i] = push[i] + (radius - s[0])
             n = wp.vec3(s[1], s[2], s[3])
             new_p = wp.transform_point(tf, q + n * (radius - s[0]))
-            body = col_body[c]
-            if body >= 0:
-                f = (new_p - pi) * (-mass[w] / (dt * dt))
-                wp.atomic_add(body_force, body, f)
-                wp.atomic_add(body_torque, body, wp.cross(new_p - col_com[c], f))
+            add_reaction(
+                col_body[c], new_p - pi, new_p, col_com[c], mass[w], dt, body_force, body_torque
+            )
             pi = new_p
     p[i] = pi
 
@@ -622,11 +639,7 @@ def collide(
         new_p = wp.transform_point(tf, q)
         corr = new_p - pi
         pi = new_p
-        body = col_body[c]
-        if body >= 0 and wp.length_sq(corr) > 0.0:
-            f = corr * (-m / (dt * dt))
-            wp.atomic_add(body_force, body, f)
-            wp.atomic_add(body_torque, body, wp.cross(pi - col_com[c], f))
+        add_reaction(col_body[c], corr, pi, col_com[c], m, dt, body_force, body_torque)
     p[i] = pi
     contacts[i] = n_contacts
 
