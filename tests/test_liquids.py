@@ -68,8 +68,9 @@ def test_measured_viscosity(name: str, mu: float) -> None:
 
 
 def test_table_6_4_liquids_present() -> None:
-    for name in ["water", "milk", "cola", "orange juice", "rapeseed oil", "dish soap", "honey"]:
-        liquid_profile(name)
+    names = ["water", "milk", "cola", "orange juice", "rapeseed oil", "dish soap", "honey"]
+    found = {liquid_profile(n).name for n in names}
+    assert found == {"Water", "Milk", "Cola", "Orange Juice", "Rapeseed Oil", "Dish Soap", "Honey"}
 
 
 def test_derived_profile_takes_base_flex_but_not_base_measurements() -> None:
