@@ -775,7 +775,7 @@ def velocity_filters(
 
 
 @wp.kernel
-def swap_velocity(src: wp.array(dtype=wp.vec3), dst: wp.array(dtype=wp.vec3)):
+def copy_velocity(src: wp.array(dtype=wp.vec3), dst: wp.array(dtype=wp.vec3)):
     i = wp.tid()
     dst[i] = src[i]
 
@@ -792,3 +792,15 @@ def query_sdf(
     """Signed distance and normal of one collider at local points (for checks and tools)."""
     i = wp.tid()
     out[i] = collider_sdf(kind, params, 0, count, mesh, points[i])
+
+
+@wp.kernel
+def copy_state(
+    x_src: wp.array(dtype=wp.vec3),
+    v_src: wp.array(dtype=wp.vec3),
+    x_dst: wp.array(dtype=wp.vec3),
+    v_dst: wp.array(dtype=wp.vec3),
+):
+    i = wp.tid()
+    x_dst[i] = x_src[i]
+    v_dst[i] = v_src[i]

@@ -421,16 +421,24 @@ class PBFSolver:
         self.sorted_idx = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
         self.cell = wp.zeros(max(n, 1), dtype=wp.vec3i, device=dev)
         self._upload_poses(prev_too=True)
+        self._cmds: dict[str, wp.Launch] = {}
         self._dirty = False
 
     def _upload_poses(self, prev_too: bool = False) -> None:
+        """Copy host collider poses to the device; the current ones become the previous ones
+        (or, with ``prev_too``, both are set). Arrays are updated in place, so the recorded
+        kernel launches stay valid."""
         cols = [self.colliders[i] for i in self._col_order] or [Collider(0, 0, np.zeros(1))]
         poses = np.array([c.pose for c in cols], np.float32)
-        new = wp.array(poses, dtype=wp.transform, device=self.device)
-        self.col_pose_prev = wp.clone(new) if prev_too else self.col_pose
-        self.col_pose = new
         coms = np.array([c.com for c in cols], np.float32)
-        self.col_com = wp.array(coms, dtype=wp.vec3, device=self.device)
+        if prev_too:
+            self.col_pose = wp.array(poses, dtype=wp.transform, device=self.device)
+            self.col_pose_prev = wp.clone(self.col_pose)
+            self.col_com = wp.array(coms, dtype=wp.vec3, device=self.device)
+        else:
+            wp.copy(self.col_pose_prev, self.col_pose)
+            self.col_pose.assign(poses)
+            self.col_com.assign(coms)
         self._poses_pending = False
 
     def set_collider_poses(
@@ -471,29 +479,48 @@ class PBFSolver:
         for _ in range(int(n)):
             self._step_once()
 
+    def _launch(
+        self, key: str, kernel: wp.Kernel, inputs: list, outputs: list | None = None
+    ) -> None:
+        """Launch ``kernel`` over the particles, replaying a recorded launch after the first.
+
+        Packing a launch's arguments costs more Python time than a small kernel runs, so each
+        distinct launch is recorded once per upload and replayed; the arrays it binds are
+        never swapped or reallocated until the next upload.
+        """
+        cmd = self._cmds.get(key)
+        if cmd is None:
+            cmd = wp.launch(
+                kernel,
+                self.n,
+                inputs=inputs,
+                outputs=outputs or [],
+                device=self.device,
+                record_cmd=True,
+            )
+            self._cmds[key] = cmd
+        cmd.launch()
+
     def _reorder(self) -> None:
         """Sort particles by (world, Morton cell) so neighbours sit close in memory.
 
         Worlds stay contiguous and each world's particles keep an order that depends only on
         that world, so batched and single-world runs stay identical.
         """
-        dev, n = self.device, self.n
-        wp.launch(
+        self._launch(
+            "order_keys",
             K.order_keys,
-            n,
-            inputs=[self.x, self.world, 1.0 / self.config.h],
-            outputs=[self.order_keys, self.order],
-            device=dev,
+            [self.x, self.world, 1.0 / self.config.h],
+            [self.order_keys, self.order],
         )
-        wp.utils.radix_sort_pairs(self.order_keys, self.order, n)
-        wp.launch(
-            K.gather_state, n, inputs=[self.order, self.x, self.v, self.p, self.v_tmp], device=dev
+        wp.utils.radix_sort_pairs(self.order_keys, self.order, self.n)
+        self._launch(
+            "gather_state", K.gather_state, [self.order, self.x, self.v, self.p, self.v_tmp]
         )
-        self.x, self.p = self.p, self.x
-        self.v, self.v_tmp = self.v_tmp, self.v
+        self._launch("copy_state", K.copy_state, [self.p, self.v_tmp, self.x, self.v])
 
     def _step_once(self) -> None:
-        cfg, dev, n = self.config, self.device, self.n
+        cfg, n = self.config, self.n
         if self._poses_pending:
             self._upload_poses()
         if n > 0 and cfg.reorder_every > 0 and self.steps % cfg.reorder_every == 0:
@@ -505,10 +532,10 @@ class PBFSolver:
             self._advance_clock()
             return
         P = self.params
-        wp.launch(
+        self._launch(
+            "predict",
             K.predict,
-            n,
-            inputs=[
+            [
                 self.x,
                 self.v,
                 self.world,
@@ -516,8 +543,7 @@ class PBFSolver:
                 wp.vec3(*cfg.gravity),
                 cfg.dt,
             ],
-            outputs=[self.x_prev, self.p],
-            device=dev,
+            [self.x_prev, self.p],
         )
         self._build_neighbours()
         col_args = [
@@ -531,17 +557,16 @@ class PBFSolver:
             self.col_params,
         ]
         for _ in range(cfg.iterations):
-            wp.launch(
+            self._launch(
+                "compute_lambda",
                 K.compute_lambda,
-                n,
-                inputs=[self.p, self.nbr, self.nbr_count, cfg.h, self.w0, self.grad_c, self.eps],
-                outputs=[self.lam, self.density],
-                device=dev,
+                [self.p, self.nbr, self.nbr_count, cfg.h, self.w0, self.grad_c, self.eps],
+                [self.lam, self.density],
             )
-            wp.launch(
+            self._launch(
+                "compute_delta",
                 K.compute_delta,
-                n,
-                inputs=[
+                [
                     self.p,
                     self.nbr,
                     self.nbr_count,
@@ -553,14 +578,13 @@ class PBFSolver:
                     self.scorr_wdq,
                     cfg.sor,
                 ],
-                outputs=[self.delta],
-                device=dev,
+                [self.delta],
             )
-            wp.launch(K.apply_delta, n, inputs=[self.p, self.delta], device=dev)
-            wp.launch(
+            self._launch("apply_delta", K.apply_delta, [self.p, self.delta])
+            self._launch(
+                "project_colliders",
                 K.project_colliders,
-                n,
-                inputs=[
+                [
                     self.p,
                     *col_args,
                     self.col_pose,
@@ -570,13 +594,12 @@ class PBFSolver:
                     cfg.radius,
                     cfg.dt,
                 ],
-                outputs=[self.body_force, self.body_torque, self.push],
-                device=dev,
+                [self.body_force, self.body_torque, self.push],
             )
-        wp.launch(
+        self._launch(
+            "collide",
             K.collide,
-            n,
-            inputs=[
+            [
                 self.p,
                 self.x_prev,
                 *col_args,
@@ -593,28 +616,25 @@ class PBFSolver:
                 cfg.adhesion_gain,
                 cfg.dt,
             ],
-            outputs=[self.push, self.contacts, self.body_force, self.body_torque],
-            device=dev,
+            [self.push, self.contacts, self.body_force, self.body_torque],
         )
-        wp.launch(
+        self._launch(
+            "update_velocity",
             K.update_velocity,
-            n,
-            inputs=[self.p, self.x_prev, self.contacts, self.world, P["dissipation"], cfg.dt],
-            outputs=[self.v, self.x],
-            device=dev,
+            [self.p, self.x_prev, self.contacts, self.world, P["dissipation"], cfg.dt],
+            [self.v, self.x],
         )
         if self._needs_curl_and_normals:
-            wp.launch(
+            self._launch(
+                "vorticity_and_normals",
                 K.vorticity_and_normals,
-                n,
-                inputs=[self.x, self.v, self.nbr, self.nbr_count, cfg.h, self.grad_c],
-                outputs=[self.omega, self.normal],
-                device=dev,
+                [self.x, self.v, self.nbr, self.nbr_count, cfg.h, self.grad_c],
+                [self.omega, self.normal],
             )
-        wp.launch(
+        self._launch(
+            "velocity_filters",
             K.velocity_filters,
-            n,
-            inputs=[
+            [
                 self.x,
                 self.v,
                 self.omega,
@@ -637,39 +657,36 @@ class PBFSolver:
                 self.coh_norm,
                 self.curv_norm,
             ],
-            outputs=[self.v_tmp],
-            device=dev,
+            [self.v_tmp],
         )
-        self.v, self.v_tmp = self.v_tmp, self.v
+        self._launch("copy_velocity", K.copy_velocity, [self.v_tmp, self.v])
         # next step's start-of-step collider poses are this step's end poses
-        self.col_pose_prev = self.col_pose
+        wp.copy(self.col_pose_prev, self.col_pose)
         self._advance_clock()
 
     def _build_neighbours(self) -> None:
         """Hash particles by (world, cell), sort the buckets, and list neighbours within h."""
-        cfg, dev, n = self.config, self.device, self.n
+        cfg, n = self.config, self.n
         inv_cell = 1.0 / cfg.h
-        wp.launch(
+        self._launch(
+            "hash_particles",
             K.hash_particles,
-            n,
-            inputs=[self.p, self.world, inv_cell, self.bucket_mask],
-            outputs=[self.cell, self.keys, self.sorted_idx],
-            device=dev,
+            [self.p, self.world, inv_cell, self.bucket_mask],
+            [self.cell, self.keys, self.sorted_idx],
         )
         wp.utils.radix_sort_pairs(self.keys, self.sorted_idx, n)
         self.bucket_start.zero_()
         self.bucket_end.zero_()
-        wp.launch(
+        self._launch(
+            "bucket_ranges",
             K.bucket_ranges,
-            n,
-            inputs=[self.keys, self.sorted_idx, self.p, n],
-            outputs=[self.bucket_start, self.bucket_end, self.p_sorted],
-            device=dev,
+            [self.keys, self.sorted_idx, self.p, n],
+            [self.bucket_start, self.bucket_end, self.p_sorted],
         )
-        wp.launch(
+        self._launch(
+            "build_neighbours",
             K.build_neighbours,
-            n,
-            inputs=[
+            [
                 self.p,
                 self.world,
                 self.cell,
@@ -681,8 +698,7 @@ class PBFSolver:
                 cfg.h,
                 cfg.max_neighbours,
             ],
-            outputs=[self.nbr, self.nbr_count],
-            device=dev,
+            [self.nbr, self.nbr_count],
         )
 
     def _advance_clock(self) -> None:
