@@ -152,3 +152,23 @@ def test_runaway_world_is_flagged_not_raised() -> None:
     s.add_particles(1, [[0.0, 0.0, 0.05]], velocities=[[0.0, 0.0, 500.0]])
     s.step(2)
     assert s.diverged().tolist() == [False, True]
+
+
+def test_edits_mid_run_continue_from_the_current_state() -> None:
+    """Changing a liquid or adding a collider mid-run must not rewind the particles."""
+
+    def run(edit: bool) -> np.ndarray:
+        s = PBFSolver(1)
+        s.add_collider(0, "plane", [0.0])
+        c = s.add_container(0, cup(0.03, 0.06))
+        s.fill(0, c, 40.0, "water")
+        s.step(30)
+        if edit:
+            before = s.positions()
+            s.set_liquid(0, "water")  # same liquid: the run must be unchanged
+            s.add_collider(0, "sphere", [0.01], pose=[1.0, 1.0, 1.0, 0, 0, 0, 1])  # far away
+            np.testing.assert_array_equal(s.positions(), before)
+        s.step(30)
+        return s.positions()
+
+    np.testing.assert_array_equal(run(True), run(False))

@@ -27,8 +27,6 @@ MESH = wp.constant(5)
 REVOLVED = wp.constant(6)
 BOX_SHELL = wp.constant(7)
 
-PI = wp.constant(3.14159265358979)
-
 
 @wp.func
 def poly6(r2: float, h: float) -> float:
@@ -611,11 +609,13 @@ def collide(
                 t = t + gap / seg_len
                 if t >= 1.0:
                     break
+        touched = hit
         if hit == 1:
             rest = b - q  # keep only the sliding part of the remaining motion
             q = q + rest - na * wp.min(wp.dot(rest, na), 0.0)
         s = collider_sdf(kind, col_params, col_start[c], col_count[c], col_mesh[c], q)
         if s[0] < radius + adhesion_range:
+            touched = 1
             n = wp.vec3(s[1], s[2], s[3])
             pen = radius - s[0]
             if pen > 0.0:
@@ -636,10 +636,10 @@ def collide(
             if pen <= 0.0 and adhesion[w] > 0.0:
                 gap = -pen
                 q = q - n * gap * wp.min(adhesion[w] * adhesion_gain, 1.0)
-        new_p = wp.transform_point(tf, q)
-        corr = new_p - pi
-        pi = new_p
-        add_reaction(col_body[c], corr, pi, col_com[c], m, dt, body_force, body_torque)
+        if touched == 1:  # untouched particles skip the frame round trip (and its rounding)
+            new_p = wp.transform_point(tf, q)
+            add_reaction(col_body[c], new_p - pi, new_p, col_com[c], m, dt, body_force, body_torque)
+            pi = new_p
     p[i] = pi
     contacts[i] = n_contacts
 

@@ -202,7 +202,7 @@ class PBFSolver:
         """Set the liquid of one world (all its particles)."""
         self._check_world(world)
         self.liquids[world] = liquid_profile(liquid)
-        self._dirty = True
+        self._mark_dirty()
 
     def add_collider(
         self,
@@ -248,7 +248,7 @@ class PBFSolver:
         if pose is not None:
             c.pose = np.asarray(pose, float).copy()
         self.colliders.append(c)
-        self._dirty = True
+        self._mark_dirty()
         return len(self.colliders) - 1
 
     def add_container(
@@ -262,7 +262,7 @@ class PBFSolver:
     def new_body_slot(self) -> int:
         """Reserve a slot that accumulates the liquid's reaction force and torque."""
         self.num_body_slots += 1
-        self._dirty = True
+        self._mark_dirty()
         return self.num_body_slots - 1
 
     def add_particles(
@@ -274,21 +274,19 @@ class PBFSolver:
         if not np.all(np.isfinite(pos)):
             raise InvalidParameterError("particle positions must be finite")
         vel = np.zeros_like(pos) if velocities is None else np.asarray(velocities, np.float32)
-        self._sync_from_device()
+        self._mark_dirty()
         # keep particles grouped by world so each world's slice is contiguous
         idx = np.searchsorted(self._world, world, side="right")
         self._x = np.insert(self._x, idx, pos, axis=0)
         self._v = np.insert(self._v, idx, vel.reshape(-1, 3), axis=0)
         self._world = np.insert(self._world, idx, np.full(len(pos), world, np.int32))
-        self._dirty = True
 
     def clear_world(self, world: int) -> None:
         """Remove every particle of ``world`` (e.g. before refilling it on an episode reset)."""
         self._check_world(world)
-        self._sync_from_device()
+        self._mark_dirty()
         keep = self._world != world
         self._x, self._v, self._world = self._x[keep], self._v[keep], self._world[keep]
-        self._dirty = True
 
     def fill(
         self,
@@ -333,10 +331,13 @@ class PBFSolver:
         if not 0 <= int(world) < self.num_worlds:
             raise InvalidParameterError(f"world {world!r} not in [0, {self.num_worlds})")
 
-    def _sync_from_device(self) -> None:
-        if not self._dirty and hasattr(self, "x"):
+    def _mark_dirty(self) -> None:
+        """Pull the device state into the host copy, then flag a re-upload before the next
+        step: host edits (particles, liquids, colliders) always start from the current state."""
+        if not self._dirty:
             self._x = self.x.numpy()
             self._v = self.v.numpy()
+            self._dirty = True
 
     def _upload(self) -> None:
         dev, cfg = self.device, self.config
@@ -467,14 +468,13 @@ class PBFSolver:
             raise InvalidParameterError(f"collider {collider} is not a container shell")
         c.kind, c.params = shape_kind(shape)
         c.shape = shape
-        self._dirty = True
+        self._mark_dirty()
 
     # --------------------------------------------------------------------------- step
 
     def step(self, n: int = 1) -> None:
         """Advance every world by ``n`` steps of ``config.dt``."""
         if self._dirty:
-            self._sync_from_device()
             self._upload()
         for _ in range(int(n)):
             self._step_once()
