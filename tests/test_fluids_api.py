@@ -172,3 +172,45 @@ def test_edits_mid_run_continue_from_the_current_state() -> None:
         return s.positions()
 
     np.testing.assert_array_equal(run(True), run(False))
+
+
+def test_half_neighbour_lists_hold_every_pair_once() -> None:
+    """Each pair within h is listed exactly once (brute force by a k-d tree), and the total
+    neighbour counts include both sides of every pair."""
+    from scipy.spatial import cKDTree
+
+    s = PBFSolver(2)
+    for w in range(2):
+        s.add_collider(w, "plane", [0.0])
+        c = s.add_container(w, cup(0.04, 0.08))
+        s.fill(w, c, 60.0 + 40.0 * w, "water")
+    s.step(5)
+    s._build_neighbours()  # lists of the current positions (the step builds them on p)
+    p, count, lists = s.p.numpy(), s.nbr_count.numpy(), s.nbr.numpy()
+    listed = [(min(i, j), max(i, j)) for i in range(len(p)) for j in lists[i, : count[i]]]
+    assert len(listed) == len(set(listed))  # no pair twice
+    world = s.worlds()
+    h = s.config.h
+    truth = {(i, j) for i, j in cKDTree(p).query_pairs(h) if world[i] == world[j]}
+    # a filled lattice puts many pairs at exactly h, where float rounding decides (W = 0 there)
+    differ = np.array(sorted(set(listed) ^ truth)).reshape(-1, 2)
+    gap = np.linalg.norm(p[differ[:, 0]] - p[differ[:, 1]], axis=1)
+    assert np.all(np.abs(gap - h) < 1e-6 * h), gap
+    assert len(truth) > 10_000
+    total = np.bincount(np.array(listed).ravel(), minlength=len(p))
+    np.testing.assert_array_equal(s.neighbour_counts(), total)
+
+
+def test_readbacks_are_snapshots() -> None:
+    """Arrays returned by the solver do not change when it steps on."""
+    s = PBFSolver(1)
+    s.add_collider(0, "plane", [0.0])
+    c = s.add_container(0, cup(0.04, 0.08))
+    s.fill(0, c, 50.0, "water")
+    s.step(2)
+    x, v = s.positions(), s.velocities()
+    x0, v0 = x.copy(), v.copy()
+    s.step(5)
+    np.testing.assert_array_equal(x, x0)
+    np.testing.assert_array_equal(v, v0)
+    assert not np.array_equal(s.positions(), x0)

@@ -8,6 +8,11 @@ particle in a full cubic lattice (the rest "density" in kernel units), so the de
 constraint is ``C_i = Σ_j W_ij / w0 − 1``. Particles of different worlds never interact:
 the spatial hash includes the world, and candidates of other worlds are rejected.
 Per-world liquid parameters are arrays indexed by ``world[i]``.
+
+Neighbour lists are half lists: each pair (i, j) within h is listed once, by the particle
+whose cell comes first (or the lower index in the same cell). Pair sums add the pair's term
+to both particles (``wp.atomic_add``, a plain add on the serial CPU path), so every square
+root and division is done once per pair instead of twice.
 """
 
 from __future__ import annotations
@@ -142,14 +147,21 @@ def bucket_ranges(
     keys: wp.array(dtype=wp.int32),
     sorted_idx: wp.array(dtype=wp.int32),
     p: wp.array(dtype=wp.vec3),
+    world: wp.array(dtype=wp.int32),
+    cell: wp.array(dtype=wp.vec3i),
     n: int,
     start: wp.array(dtype=wp.int32),
     end: wp.array(dtype=wp.int32),
     p_sorted: wp.array(dtype=wp.vec3),
+    world_sorted: wp.array(dtype=wp.int32),
+    cell_sorted: wp.array(dtype=wp.vec3i),
 ):
-    """Bucket start/end in the sorted order, and positions copied into that order."""
+    """Bucket start/end in the sorted order; positions, worlds and cells copied into it."""
     k = wp.tid()
-    p_sorted[k] = p[sorted_idx[k]]
+    j = sorted_idx[k]
+    p_sorted[k] = p[j]
+    world_sorted[k] = world[j]
+    cell_sorted[k] = cell[j]
     b = keys[k]
     if k == 0 or keys[k - 1] != b:
         start[b] = k
@@ -164,6 +176,8 @@ def build_neighbours(
     cell: wp.array(dtype=wp.vec3i),
     sorted_idx: wp.array(dtype=wp.int32),
     p_sorted: wp.array(dtype=wp.vec3),
+    world_sorted: wp.array(dtype=wp.int32),
+    cell_sorted: wp.array(dtype=wp.vec3i),
     start: wp.array(dtype=wp.int32),
     end: wp.array(dtype=wp.int32),
     mask: int,
@@ -172,31 +186,41 @@ def build_neighbours(
     nbr: wp.array2d(dtype=wp.int32),
     nbr_count: wp.array(dtype=wp.int32),
 ):
-    """Neighbours within h of every particle, in a fixed (cell, index) order."""
+    """Half neighbour list of every particle, in a fixed (cell, index) order.
+
+    Only the 13 forward cells of the 27 around a particle's cell are scanned (and, in its own
+    cell, higher indices), so each pair within h is found once. A candidate's cell and world
+    are checked against the scanned ones (a bucket may hold several cells). A list longer
+    than ``max_nb`` is cut.
+    """
     i = wp.tid()
     pi = p[i]
     wi = world[i]
     ci = cell[i]
     h2 = h * h
     count = int(0)
-    for dz in range(-1, 2):
+    for dz in range(0, 2):
         for dy in range(-1, 2):
             for dx in range(-1, 2):
-                c = wp.vec3i(ci[0] + dx, ci[1] + dy, ci[2] + dz)
-                b = bucket_of(wi, c, mask)
-                # while-loops compile to tighter CPU code than range() loops in Warp
-                k = int(start[b])
-                k_end = end[b]
-                while k < k_end:
-                    r = pi - p_sorted[k]
-                    if wp.dot(r, r) < h2:
-                        j = sorted_idx[k]
-                        cj = cell[j]
-                        same_cell = cj[0] == c[0] and cj[1] == c[1] and cj[2] == c[2]
-                        if same_cell and world[j] == wi and j != i and count < max_nb:
-                            nbr[i, count] = j
-                            count += 1
-                    k += 1
+                offset = dz * 9 + dy * 3 + dx
+                if offset >= 0:
+                    c = wp.vec3i(ci[0] + dx, ci[1] + dy, ci[2] + dz)
+                    b = bucket_of(wi, c, mask)
+                    # while-loops compile to tighter CPU code than range() loops in Warp
+                    k = int(start[b])
+                    k_end = end[b]
+                    while k < k_end:
+                        r = pi - p_sorted[k]
+                        if wp.dot(r, r) < h2:
+                            j = sorted_idx[k]
+                            ck = cell_sorted[k]
+                            same_cell = ck[0] == c[0] and ck[1] == c[1] and ck[2] == c[2]
+                            forward = offset > 0 or j > i
+                            if same_cell and forward and world_sorted[k] == wi:
+                                if count < max_nb:
+                                    nbr[i, count] = j
+                                    count += 1
+                        k += 1
     nbr_count[i] = count
 
 
@@ -249,39 +273,60 @@ def gather_state(
 
 
 @wp.kernel
-def compute_lambda(
+def density_sums(
     p: wp.array(dtype=wp.vec3),
     nbr: wp.array2d(dtype=wp.int32),
     nbr_count: wp.array(dtype=wp.int32),
     h: float,
-    w0: float,
     grad_c: float,
-    eps: float,
-    lam: wp.array(dtype=float),
-    density: wp.array(dtype=float),
+    grad_w: wp.array(dtype=wp.vec4),
+    grad2: wp.array(dtype=float),
 ):
-    """λ_i = −C_i / (Σ|∇C|² + ε) of the unilateral density constraint."""
+    """Pair sums of the density constraint: Σ_j ∇_i C (xyz) and Σ_j W_ij (w) in ``grad_w``,
+    Σ_j |∇_j C|² in ``grad2`` (both zero on entry; :func:`compute_lambda` clears them)."""
     i = wp.tid()
     pi = p[i]
-    rho = spiky(0.0, h)
-    grad_i = wp.vec3(0.0)
-    sum_grad2 = float(0.0)
+    acc = wp.vec4(0.0)
+    acc2 = float(0.0)
     # while-loops compile to tighter CPU code than range() loops in Warp
     k = int(0)
     k_end = nbr_count[i]
     while k < k_end:
-        r = pi - p[nbr[i, k]]
+        j = nbr[i, k]
+        r = pi - p[j]
         dist = wp.length(r)
-        rho += spiky(dist, h)
-        g = spiky_grad(r, dist, h, grad_c)
-        grad_i += g
-        sum_grad2 += wp.dot(g, g)
+        w = spiky(dist, h)
+        g = spiky_grad(r, dist, h, grad_c)  # ∇_i W_ij = −∇_j W_ij
+        g2 = wp.dot(g, g)
+        acc += wp.vec4(g[0], g[1], g[2], w)
+        acc2 += g2
+        wp.atomic_add(grad_w, j, wp.vec4(-g[0], -g[1], -g[2], w))
+        wp.atomic_add(grad2, j, g2)
         k += 1
-    sum_grad2 += wp.dot(grad_i, grad_i)
-    rho = rho / w0
+    wp.atomic_add(grad_w, i, acc)
+    wp.atomic_add(grad2, i, acc2)
+
+
+@wp.kernel
+def compute_lambda(
+    grad_w: wp.array(dtype=wp.vec4),
+    grad2: wp.array(dtype=float),
+    h: float,
+    w0: float,
+    eps: float,
+    lam: wp.array(dtype=float),
+    density: wp.array(dtype=float),
+):
+    """λ_i = −C_i / (Σ|∇C|² + ε) of the unilateral density constraint; clears the sums."""
+    i = wp.tid()
+    a = grad_w[i]
+    grad_i = wp.vec3(a[0], a[1], a[2])
+    rho = (a[3] + spiky(0.0, h)) / w0
     density[i] = rho
     c = wp.max(rho - 1.0, 0.0)  # unilateral: a free surface is not pulled together
-    lam[i] = -c / (sum_grad2 + eps)
+    lam[i] = -c / (grad2[i] + wp.dot(grad_i, grad_i) + eps)
+    grad_w[i] = wp.vec4(0.0)
+    grad2[i] = 0.0
 
 
 @wp.kernel
@@ -295,10 +340,10 @@ def compute_delta(
     scorr_k: float,
     scorr_n: float,
     scorr_wdq: float,
-    sor: float,
     delta: wp.array(dtype=wp.vec3),
 ):
-    """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi)."""
+    """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi), each pair added to both particles
+    (``delta`` is zero on entry; :func:`apply_delta` clears it)."""
     i = wp.tid()
     pi = p[i]
     li = lam[i]
@@ -315,15 +360,18 @@ def compute_delta(
             s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
         else:
             s_corr = -scorr_k * wp.pow(ratio, scorr_n)
-        dp += (li + lam[j] + s_corr) * spiky_grad(r, wp.sqrt(d2), h, grad_c)
+        t = (li + lam[j] + s_corr) * spiky_grad(r, wp.sqrt(d2), h, grad_c)
+        dp += t
+        wp.atomic_sub(delta, j, t)
         k += 1
-    delta[i] = dp * sor
+    wp.atomic_add(delta, i, dp)
 
 
 @wp.kernel
-def apply_delta(p: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3)):
+def apply_delta(p: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3), sor: float):
     i = wp.tid()
-    p[i] = p[i] + delta[i]
+    p[i] = p[i] + delta[i] * sor
+    delta[i] = wp.vec3(0.0)
 
 
 # ------------------------------------------------------------------------ collider SDFs
@@ -676,7 +724,9 @@ def vorticity_and_normals(
     omega: wp.array(dtype=wp.vec3),
     normal: wp.array(dtype=wp.vec3),
 ):
-    """Curl of velocity ω_i and colour-field normal n_i = h Σ ∇W / w0 (Akinci 2013)."""
+    """Curl of velocity ω_i = Σ_j (v_j − v_i) × ∇W_ij and colour-field normal
+    n_i = h Σ_j ∇W_ij / w0 (Akinci 2013), as pair sums (zero on entry; cleared by
+    :func:`apply_filters`). A pair adds the same curl term to both of its particles."""
     i = wp.tid()
     xi = x[i]
     vi = v[i]
@@ -689,15 +739,18 @@ def vorticity_and_normals(
         j = nbr[i, k]
         r = xi - x[j]
         g = spiky_grad(r, wp.length(r), h, grad_c)
-        om += wp.cross(v[j] - vi, g)
+        c = wp.cross(v[j] - vi, g)
+        om += c
         nn += g
+        wp.atomic_add(omega, j, c)
+        wp.atomic_sub(normal, j, g * h)
         k += 1
-    omega[i] = om
-    normal[i] = nn * h
+    wp.atomic_add(omega, i, om)
+    wp.atomic_add(normal, i, nn * h)
 
 
 @wp.kernel
-def velocity_filters(
+def filter_sums(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     omega: wp.array(dtype=wp.vec3),
@@ -705,7 +758,6 @@ def velocity_filters(
     nbr: wp.array2d(dtype=wp.int32),
     nbr_count: wp.array(dtype=wp.int32),
     world: wp.array(dtype=wp.int32),
-    viscosity: wp.array(dtype=float),
     vorticity: wp.array(dtype=float),
     cohesion: wp.array(dtype=float),
     surface_tension: wp.array(dtype=float),
@@ -714,14 +766,19 @@ def velocity_filters(
     grad_c: float,
     spacing: float,
     dt: float,
-    visc_rate: float,
     coh_accel: float,
     st_accel: float,
     coh_norm: float,
     curv_norm: float,
-    v_out: wp.array(dtype=wp.vec3),
+    vsum: wp.array(dtype=wp.vec4),
+    eta: wp.array(dtype=wp.vec3),
+    dv_sum: wp.array(dtype=wp.vec3),
 ):
-    """XSPH viscosity, vorticity confinement, cohesion, surface tension, particle friction.
+    """Pair sums of the velocity filters (zero on entry; cleared by :func:`apply_filters`).
+
+    ``vsum``: Σ_j W_ij v_j (xyz) and Σ_j W_ij (w) for XSPH viscosity; ``eta``: ∇|ω| for
+    vorticity confinement; ``dv_sum``: the velocity change of cohesion, surface tension
+    (curvature) and particle friction, whose pair terms are antisymmetric.
 
     FleX's coefficients are dimensionless; pourbench maps them onto rates as documented in
     :mod:`pourbench.fluids.solver` (``SolverConfig.viscosity_rate`` etc.), the same for every
@@ -730,54 +787,82 @@ def velocity_filters(
     i = wp.tid()
     w = world[i]
     vort_on = vorticity[w] > 0.0
+    kc = cohesion[w] * coh_accel * dt / coh_norm
+    ks = surface_tension[w] * st_accel * dt / curv_norm
+    kf = wp.min(particle_friction[w] * 0.1, 1.0)
     xi = x[i]
     vi = v[i]
-    wsum = float(0.0)
-    vavg = wp.vec3(0.0)
-    eta = wp.vec3(0.0)
-    coh = wp.vec3(0.0)
-    curv = wp.vec3(0.0)
-    fric = wp.vec3(0.0)
+    ni = normal[i]
+    om_i = wp.length(omega[i])
+    acc_v = wp.vec4(0.0)
+    acc_eta = wp.vec3(0.0)
+    acc_dv = wp.vec3(0.0)
     # while-loops compile to tighter CPU code than range() loops in Warp
     k = int(0)
     k_end = nbr_count[i]
     while k < k_end:
         j = nbr[i, k]
+        vj = v[j]
         r = xi - x[j]
         d = wp.length(r)
         wij = poly6(d * d, h)
-        wsum += wij
-        vavg += v[j] * wij
+        acc_v += wp.vec4(vj[0] * wij, vj[1] * wij, vj[2] * wij, wij)
+        wp.atomic_add(vsum, j, wp.vec4(vi[0] * wij, vi[1] * wij, vi[2] * wij, wij))
         if vort_on:
-            eta += spiky_grad(r, d, h, grad_c) * wp.length(omega[j])
+            g = spiky_grad(r, d, h, grad_c)
+            acc_eta += g * wp.length(omega[j])
+            wp.atomic_sub(eta, j, g * om_i)
+        f = (normal[j] - ni) * ks  # curvature
         if d > 1.0e-9:
-            coh -= (r / d) * cohesion_spline(d, h)
+            rh = r / d
+            f -= rh * (cohesion_spline(d, h) * kc)
             if d < spacing:
-                dv = v[j] - vi
-                dv_t = dv - (r / d) * wp.dot(dv, r / d)
-                fric += dv_t * (1.0 - d / spacing)
-        curv -= normal[i] - normal[j]
+                dv = vj - vi
+                f += (dv - rh * wp.dot(dv, rh)) * ((1.0 - d / spacing) * kf)
+        acc_dv += f
+        wp.atomic_sub(dv_sum, j, f)
         k += 1
-    dv = wp.vec3(0.0)
-    if wsum > 0.0:
-        # XSPH: relax toward the kernel-weighted neighbour mean by a = ν / (1 + ν) per step
-        # (FleX's coefficient; the saturating form keeps ν ≫ 1 stable)
-        kv = visc_rate * viscosity[w]
-        dv += (vavg / wsum - vi) * (kv / (1.0 + kv))
-    eta_len = wp.length(eta)
-    if eta_len > 1.0e-9 and vort_on:
-        dv += wp.cross(eta / eta_len, omega[i]) * (vorticity[w] * dt)
-    # cohesion and curvature sums are normalised by their full-lattice magnitudes (rest_norm)
-    dv += coh * (cohesion[w] * coh_accel * dt / coh_norm)
-    dv += curv * (surface_tension[w] * st_accel * dt / curv_norm)
-    dv += fric * wp.min(particle_friction[w] * 0.1, 1.0)
-    v_out[i] = vi + dv
+    wp.atomic_add(vsum, i, acc_v)
+    wp.atomic_add(eta, i, acc_eta)
+    wp.atomic_add(dv_sum, i, acc_dv)
 
 
 @wp.kernel
-def copy_velocity(src: wp.array(dtype=wp.vec3), dst: wp.array(dtype=wp.vec3)):
+def apply_filters(
+    world: wp.array(dtype=wp.int32),
+    viscosity: wp.array(dtype=float),
+    vorticity: wp.array(dtype=float),
+    visc_rate: float,
+    dt: float,
+    vsum: wp.array(dtype=wp.vec4),
+    eta: wp.array(dtype=wp.vec3),
+    dv_sum: wp.array(dtype=wp.vec3),
+    omega: wp.array(dtype=wp.vec3),
+    normal: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+):
+    """XSPH viscosity, vorticity confinement, cohesion, surface tension and particle friction
+    from the pair sums; clears the sums for the next step."""
     i = wp.tid()
-    dst[i] = src[i]
+    w = world[i]
+    vi = v[i]
+    dv = dv_sum[i]
+    a = vsum[i]
+    if a[3] > 0.0:
+        # XSPH: relax toward the kernel-weighted neighbour mean by a = ν / (1 + ν) per step
+        # (FleX's coefficient; the saturating form keeps ν ≫ 1 stable)
+        kv = visc_rate * viscosity[w]
+        dv += (wp.vec3(a[0], a[1], a[2]) / a[3] - vi) * (kv / (1.0 + kv))
+    e = eta[i]
+    e_len = wp.length(e)
+    if e_len > 1.0e-9 and vorticity[w] > 0.0:
+        dv += wp.cross(e / e_len, omega[i]) * (vorticity[w] * dt)
+    v[i] = vi + dv
+    vsum[i] = wp.vec4(0.0)
+    eta[i] = wp.vec3(0.0)
+    dv_sum[i] = wp.vec3(0.0)
+    omega[i] = wp.vec3(0.0)
+    normal[i] = wp.vec3(0.0)
 
 
 @wp.kernel

@@ -4,8 +4,8 @@ One :class:`PBFSolver` holds ``num_worlds`` independent worlds. Particles of dif
 worlds never interact; each world has its own liquid, colliders and collider poses; one
 kernel launch per stage advances every world. A step is Macklin & Müller's PBF loop:
 
-predict (gravity, damping) → neighbour lists (spatial hash of (world, cell), radix-sorted) →
-``iterations`` Jacobi
+predict (gravity, damping) → half neighbour lists (spatial hash of (world, cell),
+radix-sorted; each pair once, its terms added to both particles) → ``iterations`` Jacobi
 density iterations (λ with constraint-force mixing, Δp with the s_corr tensile term,
 projection out of colliders) → swept collision with friction and adhesion (reaction summed
 per body) → velocity update (dissipation) → vorticity confinement, XSPH viscosity, cohesion,
@@ -60,7 +60,8 @@ class SolverConfig:
         relaxation: constraint-force mixing ε as a fraction of a full neighbourhood's Σ|∇C|².
         scorr_k, scorr_n, scorr_dq: tensile-instability term s_corr = −k (W(r)/W(Δq))^n,
             with Δq = scorr_dq × h.
-        max_neighbours: neighbour-list capacity per particle.
+        max_neighbours: capacity of a particle's half neighbour list (each pair is listed
+            once, so about half of its neighbours).
         sor: over/under-relaxation factor applied to each Jacobi position correction.
         reorder_every: steps between spatial re-sorts of the particle arrays (0: never).
             Particle order inside a world therefore changes over time.
@@ -335,8 +336,8 @@ class PBFSolver:
         """Pull the device state into the host copy, then flag a re-upload before the next
         step: host edits (particles, liquids, colliders) always start from the current state."""
         if not self._dirty:
-            self._x = self.x.numpy()
-            self._v = self.v.numpy()
+            self._x = self.x.numpy().copy()
+            self._v = self.v.numpy().copy()
             self._dirty = True
 
     def _upload(self) -> None:
@@ -347,9 +348,13 @@ class PBFSolver:
         self.x = f(self._x)
         self.v = f(self._v)
         self.world = wp.array(self._world, dtype=wp.int32, device=dev)
-        for name in ("x_prev", "p", "p_sorted", "delta", "omega", "normal", "v_tmp"):
+        for name in ("x_prev", "p", "p_sorted", "delta", "omega", "normal", "v_tmp", "eta"):
             setattr(self, name, wp.zeros(n, dtype=wp.vec3, device=dev))
         self.lam = wp.zeros(n, dtype=float, device=dev)
+        self.grad_w = wp.zeros(n, dtype=wp.vec4, device=dev)
+        self.grad2 = wp.zeros(n, dtype=float, device=dev)
+        self.vsum = wp.zeros(n, dtype=wp.vec4, device=dev)
+        self.dv_sum = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.push = wp.zeros(n, dtype=float, device=dev)
         self.density = wp.zeros(n, dtype=float, device=dev)
         self.contacts = wp.zeros(n, dtype=wp.int32, device=dev)
@@ -357,6 +362,7 @@ class PBFSolver:
         self.order = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
         self.nbr = wp.zeros((n, cfg.max_neighbours), dtype=wp.int32, device=dev)
         self.nbr_count = wp.zeros(n, dtype=wp.int32, device=dev)
+        self.world_sorted = wp.zeros(max(n, 1), dtype=wp.int32, device=dev)
         # per-world liquid parameters
         attrs = (
             "damping",
@@ -421,6 +427,7 @@ class PBFSolver:
         self.keys = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
         self.sorted_idx = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
         self.cell = wp.zeros(max(n, 1), dtype=wp.vec3i, device=dev)
+        self.cell_sorted = wp.zeros(max(n, 1), dtype=wp.vec3i, device=dev)
         self._upload_poses(prev_too=True)
         self._cmds: dict[str, wp.Launch] = {}
         self._dirty = False
@@ -558,9 +565,15 @@ class PBFSolver:
         ]
         for _ in range(cfg.iterations):
             self._launch(
+                "density_sums",
+                K.density_sums,
+                [self.p, self.nbr, self.nbr_count, cfg.h, self.grad_c],
+                [self.grad_w, self.grad2],
+            )
+            self._launch(
                 "compute_lambda",
                 K.compute_lambda,
-                [self.p, self.nbr, self.nbr_count, cfg.h, self.w0, self.grad_c, self.eps],
+                [self.grad_w, self.grad2, cfg.h, self.w0, self.eps],
                 [self.lam, self.density],
             )
             self._launch(
@@ -576,11 +589,10 @@ class PBFSolver:
                     self.scorr_scale,
                     cfg.scorr_n,
                     self.scorr_wdq,
-                    cfg.sor,
                 ],
                 [self.delta],
             )
-            self._launch("apply_delta", K.apply_delta, [self.p, self.delta])
+            self._launch("apply_delta", K.apply_delta, [self.p, self.delta, cfg.sor])
             self._launch(
                 "project_colliders",
                 K.project_colliders,
@@ -632,8 +644,8 @@ class PBFSolver:
                 [self.omega, self.normal],
             )
         self._launch(
-            "velocity_filters",
-            K.velocity_filters,
+            "filter_sums",
+            K.filter_sums,
             [
                 self.x,
                 self.v,
@@ -642,7 +654,6 @@ class PBFSolver:
                 self.nbr,
                 self.nbr_count,
                 self.world,
-                P["viscosity"],
                 P["vorticity_confinement"],
                 P["cohesion"],
                 P["surface_tension"],
@@ -651,15 +662,30 @@ class PBFSolver:
                 self.grad_c,
                 cfg.spacing,
                 cfg.dt,
-                cfg.viscosity_rate,
                 cfg.cohesion_accel,
                 cfg.surface_tension_accel,
                 self.coh_norm,
                 self.curv_norm,
             ],
-            [self.v_tmp],
+            [self.vsum, self.eta, self.dv_sum],
         )
-        self._launch("copy_velocity", K.copy_velocity, [self.v_tmp, self.v])
+        self._launch(
+            "apply_filters",
+            K.apply_filters,
+            [
+                self.world,
+                P["viscosity"],
+                P["vorticity_confinement"],
+                cfg.viscosity_rate,
+                cfg.dt,
+                self.vsum,
+                self.eta,
+                self.dv_sum,
+                self.omega,
+                self.normal,
+            ],
+            [self.v],
+        )
         # next step's start-of-step collider poses are this step's end poses
         wp.copy(self.col_pose_prev, self.col_pose)
         self._advance_clock()
@@ -680,8 +706,14 @@ class PBFSolver:
         self._launch(
             "bucket_ranges",
             K.bucket_ranges,
-            [self.keys, self.sorted_idx, self.p, n],
-            [self.bucket_start, self.bucket_end, self.p_sorted],
+            [self.keys, self.sorted_idx, self.p, self.world, self.cell, n],
+            [
+                self.bucket_start,
+                self.bucket_end,
+                self.p_sorted,
+                self.world_sorted,
+                self.cell_sorted,
+            ],
         )
         self._launch(
             "build_neighbours",
@@ -692,6 +724,8 @@ class PBFSolver:
                 self.cell,
                 self.sorted_idx,
                 self.p_sorted,
+                self.world_sorted,
+                self.cell_sorted,
                 self.bucket_start,
                 self.bucket_end,
                 self.bucket_mask,
@@ -713,11 +747,11 @@ class PBFSolver:
 
     def positions(self) -> np.ndarray:
         """All particle positions (n, 3), m, grouped by world."""
-        return self._x.copy() if self._dirty else self.x.numpy()
+        return self._x.copy() if self._dirty else self.x.numpy().copy()
 
     def velocities(self) -> np.ndarray:
         """All particle velocities (n, 3), m/s."""
-        return self._v.copy() if self._dirty else self.v.numpy()
+        return self._v.copy() if self._dirty else self.v.numpy().copy()
 
     def worlds(self) -> np.ndarray:
         """World index of every particle."""
@@ -735,11 +769,16 @@ class PBFSolver:
 
     def densities(self) -> np.ndarray:
         """Last computed density of every particle over the rest density (1 = at rest)."""
-        return self.density.numpy() if not self._dirty else np.ones(len(self._x))
+        return self.density.numpy().copy() if not self._dirty else np.ones(len(self._x))
 
     def neighbour_counts(self) -> np.ndarray:
-        """Neighbours (within h) of every particle at the last step."""
-        return self.nbr_count.numpy() if not self._dirty else np.zeros(len(self._x), np.int32)
+        """Neighbours (within h) of every particle at the last step, counting both sides of
+        each listed pair."""
+        if self._dirty:
+            return np.zeros(len(self._x), np.int32)
+        count, lists = self.nbr_count.numpy(), self.nbr.numpy()
+        listed = lists[np.arange(lists.shape[1]) < count[:, None]]
+        return (count + np.bincount(listed, minlength=self.n)).astype(np.int32)
 
     def density_error(self, world: int | None = None) -> float:
         """Mean |ρ/ρ0 − 1| over bulk particles (≥ 90 % of a lattice particle's neighbours).
@@ -764,8 +803,8 @@ class PBFSolver:
         if self._dirty:
             z = np.zeros((self.num_body_slots, 3))
             return z, z.copy()
-        f = self.body_force.numpy()[: self.num_body_slots]
-        t = self.body_torque.numpy()[: self.num_body_slots]
+        f = self.body_force.numpy()[: self.num_body_slots].copy()
+        t = self.body_torque.numpy()[: self.num_body_slots].copy()
         return f.astype(float), t.astype(float)
 
     def collider_sdf(self, collider: int, local_points: np.ndarray) -> np.ndarray:
