@@ -186,8 +186,11 @@ def test_half_neighbour_lists_hold_every_pair_once() -> None:
         s.fill(w, c, 60.0 + 40.0 * w, "water")
     s.step(5)
     s._build_neighbours()  # lists of the current positions (the step builds them on p)
-    p, count, lists = s.p.numpy(), s.nbr_count.numpy(), s.nbr.numpy()
-    listed = [(min(i, j), max(i, j)) for i in range(len(p)) for j in lists[i, : count[i]]]
+    p, count, start = s.p.numpy(), s.nbr_count.numpy(), s.nbr_start.numpy()
+    lists = s.nbr.numpy()
+    listed = [
+        (min(i, j), max(i, j)) for i in range(len(p)) for j in lists[start[i] : start[i] + count[i]]
+    ]
     assert len(listed) == len(set(listed))  # no pair twice
     world = s.worlds()
     h = s.config.h

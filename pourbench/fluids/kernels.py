@@ -12,7 +12,10 @@ Per-world liquid parameters are arrays indexed by ``world[i]``.
 Neighbour lists are half lists: each pair (i, j) within h is listed once, by the particle
 whose cell comes first (or the lower index in the same cell). Pair sums add the pair's term
 to both particles (``wp.atomic_add``, a plain add on the serial CPU path), so every square
-root and division is done once per pair instead of twice.
+root and division is done once per pair instead of twice. The lists are built with a fixed
+capacity per particle, then packed into one array (``nbr[start[i] : start[i] + count[i]]``),
+which the pair passes stream through; the density pass caches each pair's kernel gradient and
+tensile term for the position pass of the same iteration.
 """
 
 from __future__ import annotations
@@ -54,12 +57,18 @@ def spiky(dist: float, h: float) -> float:
 
 
 @wp.func
+def spiky_factor(dist: float, h: float, coef: float) -> float:
+    """Scalar of the spiky-kernel gradient: ``spiky_grad(r, ...) = r * spiky_factor(...)``."""
+    if dist >= h or dist < 1.0e-9:
+        return 0.0
+    d = h - dist
+    return coef * d * d / dist
+
+
+@wp.func
 def spiky_grad(r: wp.vec3, dist: float, h: float, coef: float) -> wp.vec3:
     """Spiky-kernel gradient; ``coef`` = −45/(π h⁶) / w0 (constant scaled by the rest sum)."""
-    if dist >= h or dist < 1.0e-9:
-        return wp.vec3(0.0)
-    d = h - dist
-    return r * (coef * d * d / dist)
+    return r * spiky_factor(dist, h, coef)
 
 
 @wp.func
@@ -224,6 +233,20 @@ def build_neighbours(
     nbr_count[i] = count
 
 
+@wp.kernel
+def pack_neighbours(
+    nbr_build: wp.array2d(dtype=wp.int32),
+    count: wp.array(dtype=wp.int32),
+    start: wp.array(dtype=wp.int32),
+    nbr: wp.array(dtype=wp.int32),
+):
+    """Copy each particle's list to ``nbr[start[i]:]`` (``start``: exclusive scan of count)."""
+    i = wp.tid()
+    s = start[i]
+    for k in range(count[i]):
+        nbr[s + k] = nbr_build[i, k]
+
+
 @wp.func
 def spread_bits(v: wp.uint64) -> wp.uint64:
     """Interleave the low 11 bits of ``v`` with two zero bits each (for a Morton code)."""
@@ -275,29 +298,47 @@ def gather_state(
 @wp.kernel
 def density_sums(
     p: wp.array(dtype=wp.vec3),
-    nbr: wp.array2d(dtype=wp.int32),
+    nbr: wp.array(dtype=wp.int32),
+    nbr_start: wp.array(dtype=wp.int32),
     nbr_count: wp.array(dtype=wp.int32),
     h: float,
     grad_c: float,
+    scorr_k: float,
+    scorr_n: float,
+    scorr_wdq: float,
     grad_w: wp.array(dtype=wp.vec4),
     grad2: wp.array(dtype=float),
+    pair: wp.array(dtype=wp.vec2),
 ):
     """Pair sums of the density constraint: Σ_j ∇_i C (xyz) and Σ_j W_ij (w) in ``grad_w``,
-    Σ_j |∇_j C|² in ``grad2`` (both zero on entry; :func:`compute_lambda` clears them)."""
+    Σ_j |∇_j C|² in ``grad2`` (both zero on entry; :func:`compute_lambda` clears them).
+
+    Each pair's gradient factor (∇W_ij = factor · r_ij) and tensile term
+    s_corr = −k (W(r)/W(Δq))^n go to ``pair`` for :func:`compute_delta`.
+    """
     i = wp.tid()
     pi = p[i]
     acc = wp.vec4(0.0)
     acc2 = float(0.0)
     # while-loops compile to tighter CPU code than range() loops in Warp
-    k = int(0)
-    k_end = nbr_count[i]
+    k = nbr_start[i]
+    k_end = k + nbr_count[i]
     while k < k_end:
-        j = nbr[i, k]
+        j = nbr[k]
         r = pi - p[j]
-        dist = wp.length(r)
+        d2 = wp.dot(r, r)
+        dist = wp.sqrt(d2)
         w = spiky(dist, h)
-        g = spiky_grad(r, dist, h, grad_c)  # ∇_i W_ij = −∇_j W_ij
+        factor = spiky_factor(dist, h, grad_c)
+        g = r * factor  # ∇_i W_ij = −∇_j W_ij
         g2 = wp.dot(g, g)
+        ratio = poly6(d2, h) / scorr_wdq
+        s_corr = float(0.0)
+        if scorr_n == 4.0:
+            s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
+        else:
+            s_corr = -scorr_k * wp.pow(ratio, scorr_n)
+        pair[k] = wp.vec2(factor, s_corr)
         acc += wp.vec4(g[0], g[1], g[2], w)
         acc2 += g2
         wp.atomic_add(grad_w, j, wp.vec4(-g[0], -g[1], -g[2], w))
@@ -332,35 +373,26 @@ def compute_lambda(
 @wp.kernel
 def compute_delta(
     p: wp.array(dtype=wp.vec3),
-    nbr: wp.array2d(dtype=wp.int32),
+    nbr: wp.array(dtype=wp.int32),
+    nbr_start: wp.array(dtype=wp.int32),
     nbr_count: wp.array(dtype=wp.int32),
     lam: wp.array(dtype=float),
-    h: float,
-    grad_c: float,
-    scorr_k: float,
-    scorr_n: float,
-    scorr_wdq: float,
+    pair: wp.array(dtype=wp.vec2),
     delta: wp.array(dtype=wp.vec3),
 ):
-    """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi), each pair added to both particles
-    (``delta`` is zero on entry; :func:`apply_delta` clears it)."""
+    """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi) from the pair terms cached by
+    :func:`density_sums`, each pair added to both particles (``delta`` is zero on entry;
+    :func:`apply_delta` clears it)."""
     i = wp.tid()
     pi = p[i]
     li = lam[i]
     dp = wp.vec3(0.0)
-    k = int(0)
-    k_end = nbr_count[i]
+    k = nbr_start[i]
+    k_end = k + nbr_count[i]
     while k < k_end:
-        j = nbr[i, k]
-        r = pi - p[j]
-        d2 = wp.dot(r, r)
-        ratio = poly6(d2, h) / scorr_wdq
-        s_corr = float(0.0)
-        if scorr_n == 4.0:
-            s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
-        else:
-            s_corr = -scorr_k * wp.pow(ratio, scorr_n)
-        t = (li + lam[j] + s_corr) * spiky_grad(r, wp.sqrt(d2), h, grad_c)
+        j = nbr[k]
+        e = pair[k]
+        t = (pi - p[j]) * ((li + lam[j] + e[1]) * e[0])
         dp += t
         wp.atomic_sub(delta, j, t)
         k += 1
@@ -717,7 +749,8 @@ def update_velocity(
 def vorticity_and_normals(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
-    nbr: wp.array2d(dtype=wp.int32),
+    nbr: wp.array(dtype=wp.int32),
+    nbr_start: wp.array(dtype=wp.int32),
     nbr_count: wp.array(dtype=wp.int32),
     h: float,
     grad_c: float,
@@ -733,10 +766,10 @@ def vorticity_and_normals(
     om = wp.vec3(0.0)
     nn = wp.vec3(0.0)
     # while-loops compile to tighter CPU code than range() loops in Warp
-    k = int(0)
-    k_end = nbr_count[i]
+    k = nbr_start[i]
+    k_end = k + nbr_count[i]
     while k < k_end:
-        j = nbr[i, k]
+        j = nbr[k]
         r = xi - x[j]
         g = spiky_grad(r, wp.length(r), h, grad_c)
         c = wp.cross(v[j] - vi, g)
@@ -755,7 +788,8 @@ def filter_sums(
     v: wp.array(dtype=wp.vec3),
     omega: wp.array(dtype=wp.vec3),
     normal: wp.array(dtype=wp.vec3),
-    nbr: wp.array2d(dtype=wp.int32),
+    nbr: wp.array(dtype=wp.int32),
+    nbr_start: wp.array(dtype=wp.int32),
     nbr_count: wp.array(dtype=wp.int32),
     world: wp.array(dtype=wp.int32),
     vorticity: wp.array(dtype=float),
@@ -798,10 +832,10 @@ def filter_sums(
     acc_eta = wp.vec3(0.0)
     acc_dv = wp.vec3(0.0)
     # while-loops compile to tighter CPU code than range() loops in Warp
-    k = int(0)
-    k_end = nbr_count[i]
+    k = nbr_start[i]
+    k_end = k + nbr_count[i]
     while k < k_end:
-        j = nbr[i, k]
+        j = nbr[k]
         vj = v[j]
         r = xi - x[j]
         d = wp.length(r)

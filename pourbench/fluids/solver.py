@@ -360,8 +360,13 @@ class PBFSolver:
         self.contacts = wp.zeros(n, dtype=wp.int32, device=dev)
         self.order_keys = wp.zeros(2 * max(n, 1), dtype=wp.int64, device=dev)
         self.order = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
-        self.nbr = wp.zeros((n, cfg.max_neighbours), dtype=wp.int32, device=dev)
+        # half lists: built per particle with a fixed capacity, then packed (see kernels)
+        cap = max(n * cfg.max_neighbours, 1)
+        self.nbr_build = wp.zeros((n, cfg.max_neighbours), dtype=wp.int32, device=dev)
         self.nbr_count = wp.zeros(n, dtype=wp.int32, device=dev)
+        self.nbr_start = wp.zeros(n, dtype=wp.int32, device=dev)
+        self.nbr = wp.zeros(cap, dtype=wp.int32, device=dev)
+        self.pair = wp.zeros(cap, dtype=wp.vec2, device=dev)
         self.world_sorted = wp.zeros(max(n, 1), dtype=wp.int32, device=dev)
         # per-world liquid parameters
         attrs = (
@@ -567,8 +572,18 @@ class PBFSolver:
             self._launch(
                 "density_sums",
                 K.density_sums,
-                [self.p, self.nbr, self.nbr_count, cfg.h, self.grad_c],
-                [self.grad_w, self.grad2],
+                [
+                    self.p,
+                    self.nbr,
+                    self.nbr_start,
+                    self.nbr_count,
+                    cfg.h,
+                    self.grad_c,
+                    self.scorr_scale,
+                    cfg.scorr_n,
+                    self.scorr_wdq,
+                ],
+                [self.grad_w, self.grad2, self.pair],
             )
             self._launch(
                 "compute_lambda",
@@ -579,17 +594,7 @@ class PBFSolver:
             self._launch(
                 "compute_delta",
                 K.compute_delta,
-                [
-                    self.p,
-                    self.nbr,
-                    self.nbr_count,
-                    self.lam,
-                    cfg.h,
-                    self.grad_c,
-                    self.scorr_scale,
-                    cfg.scorr_n,
-                    self.scorr_wdq,
-                ],
+                [self.p, self.nbr, self.nbr_start, self.nbr_count, self.lam, self.pair],
                 [self.delta],
             )
             self._launch("apply_delta", K.apply_delta, [self.p, self.delta, cfg.sor])
@@ -640,7 +645,7 @@ class PBFSolver:
             self._launch(
                 "vorticity_and_normals",
                 K.vorticity_and_normals,
-                [self.x, self.v, self.nbr, self.nbr_count, cfg.h, self.grad_c],
+                [self.x, self.v, self.nbr, self.nbr_start, self.nbr_count, cfg.h, self.grad_c],
                 [self.omega, self.normal],
             )
         self._launch(
@@ -652,6 +657,7 @@ class PBFSolver:
                 self.omega,
                 self.normal,
                 self.nbr,
+                self.nbr_start,
                 self.nbr_count,
                 self.world,
                 P["vorticity_confinement"],
@@ -732,7 +738,14 @@ class PBFSolver:
                 cfg.h,
                 cfg.max_neighbours,
             ],
-            [self.nbr, self.nbr_count],
+            [self.nbr_build, self.nbr_count],
+        )
+        wp.utils.array_scan(self.nbr_count, self.nbr_start, inclusive=False)
+        self._launch(
+            "pack_neighbours",
+            K.pack_neighbours,
+            [self.nbr_build, self.nbr_count, self.nbr_start],
+            [self.nbr],
         )
 
     def _advance_clock(self) -> None:
@@ -776,8 +789,8 @@ class PBFSolver:
         each listed pair."""
         if self._dirty:
             return np.zeros(len(self._x), np.int32)
-        count, lists = self.nbr_count.numpy(), self.nbr.numpy()
-        listed = lists[np.arange(lists.shape[1]) < count[:, None]]
+        count, start = self.nbr_count.numpy(), self.nbr_start.numpy()
+        listed = self.nbr.numpy()[: int(start[-1] + count[-1])] if self.n else []
         return (count + np.bincount(listed, minlength=self.n)).astype(np.int32)
 
     def density_error(self, world: int | None = None) -> float:
