@@ -25,6 +25,9 @@ import warp as wp
 wp.config.quiet = True
 wp.set_module_options({"enable_backward": False})
 
+vec5 = wp.types.vector(length=5, dtype=wp.float32)
+"""Density pair sums of a particle: Σ∇_i C (xyz), Σ W (w) and Σ|∇_j C|², added in one go."""
+
 # Collider kinds (one SDF routine each).
 PLANE = wp.constant(0)
 BOX = wp.constant(1)
@@ -306,20 +309,18 @@ def density_sums(
     scorr_k: float,
     scorr_n: float,
     scorr_wdq: float,
-    grad_w: wp.array(dtype=wp.vec4),
-    grad2: wp.array(dtype=float),
+    sums: wp.array(dtype=vec5),
     pair: wp.array(dtype=wp.vec2),
 ):
-    """Pair sums of the density constraint: Σ_j ∇_i C (xyz) and Σ_j W_ij (w) in ``grad_w``,
-    Σ_j |∇_j C|² in ``grad2`` (both zero on entry; :func:`compute_lambda` clears them).
+    """Pair sums of the density constraint: Σ_j ∇_i C, Σ_j W_ij and Σ_j |∇_j C|² in ``sums``
+    (zero on entry; :func:`compute_lambda` clears them).
 
     Each pair's gradient factor (∇W_ij = factor · r_ij) and tensile term
     s_corr = −k (W(r)/W(Δq))^n go to ``pair`` for :func:`compute_delta`.
     """
     i = wp.tid()
     pi = p[i]
-    acc = wp.vec4(0.0)
-    acc2 = float(0.0)
+    acc = vec5(0.0)
     # while-loops compile to tighter CPU code than range() loops in Warp
     k = nbr_start[i]
     k_end = k + nbr_count[i]
@@ -339,19 +340,15 @@ def density_sums(
         else:
             s_corr = -scorr_k * wp.pow(ratio, scorr_n)
         pair[k] = wp.vec2(factor, s_corr)
-        acc += wp.vec4(g[0], g[1], g[2], w)
-        acc2 += g2
-        wp.atomic_add(grad_w, j, wp.vec4(-g[0], -g[1], -g[2], w))
-        wp.atomic_add(grad2, j, g2)
+        acc += vec5(g[0], g[1], g[2], w, g2)
+        wp.atomic_add(sums, j, vec5(-g[0], -g[1], -g[2], w, g2))
         k += 1
-    wp.atomic_add(grad_w, i, acc)
-    wp.atomic_add(grad2, i, acc2)
+    wp.atomic_add(sums, i, acc)
 
 
 @wp.kernel
 def compute_lambda(
-    grad_w: wp.array(dtype=wp.vec4),
-    grad2: wp.array(dtype=float),
+    sums: wp.array(dtype=vec5),
     h: float,
     w0: float,
     eps: float,
@@ -360,14 +357,13 @@ def compute_lambda(
 ):
     """λ_i = −C_i / (Σ|∇C|² + ε) of the unilateral density constraint; clears the sums."""
     i = wp.tid()
-    a = grad_w[i]
+    a = sums[i]
     grad_i = wp.vec3(a[0], a[1], a[2])
     rho = (a[3] + spiky(0.0, h)) / w0
     density[i] = rho
     c = wp.max(rho - 1.0, 0.0)  # unilateral: a free surface is not pulled together
-    lam[i] = -c / (grad2[i] + wp.dot(grad_i, grad_i) + eps)
-    grad_w[i] = wp.vec4(0.0)
-    grad2[i] = 0.0
+    lam[i] = -c / (a[4] + wp.dot(grad_i, grad_i) + eps)
+    sums[i] = vec5(0.0)
 
 
 @wp.kernel

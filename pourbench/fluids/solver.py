@@ -351,8 +351,7 @@ class PBFSolver:
         for name in ("x_prev", "p", "p_sorted", "delta", "omega", "normal", "v_tmp", "eta"):
             setattr(self, name, wp.zeros(n, dtype=wp.vec3, device=dev))
         self.lam = wp.zeros(n, dtype=float, device=dev)
-        self.grad_w = wp.zeros(n, dtype=wp.vec4, device=dev)
-        self.grad2 = wp.zeros(n, dtype=float, device=dev)
+        self.sums = wp.zeros(n, dtype=K.vec5, device=dev)
         self.vsum = wp.zeros(n, dtype=wp.vec4, device=dev)
         self.dv_sum = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.push = wp.zeros(n, dtype=float, device=dev)
@@ -583,12 +582,12 @@ class PBFSolver:
                     cfg.scorr_n,
                     self.scorr_wdq,
                 ],
-                [self.grad_w, self.grad2, self.pair],
+                [self.sums, self.pair],
             )
             self._launch(
                 "compute_lambda",
                 K.compute_lambda,
-                [self.grad_w, self.grad2, cfg.h, self.w0, self.eps],
+                [self.sums, cfg.h, self.w0, self.eps],
                 [self.lam, self.density],
             )
             self._launch(
