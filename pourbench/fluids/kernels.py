@@ -9,16 +9,21 @@ constraint is ``C_i = Σ_j W_ij / w0 − 1``. Particles of different worlds neve
 the spatial hash includes the world, and candidates of other worlds are rejected.
 Per-world liquid parameters are arrays indexed by ``world[i]``.
 
-Neighbour lists are half lists: each pair (i, j) within h is listed once, by the particle
-whose cell comes first (or the lower index in the same cell). Pair sums add the pair's term
-to both particles (``wp.atomic_add``, a plain add on the serial CPU path), so every square
-root and division is done once per pair instead of twice. The lists are built with a fixed
-capacity per particle, then packed into one array (``nbr[start[i] : start[i] + count[i]]``),
-which the pair passes stream through; the density pass caches each pair's kernel gradient and
-tensile term for the position pass of the same iteration.
+Neighbour lists come in two modes, chosen per device by the solver. Half lists (the CPU
+default): each pair (i, j) within h is listed once, by the particle whose cell comes first
+(or the lower index in the same cell), and pair sums add the pair's term to both particles
+(``wp.atomic_add``, a plain add on the serial CPU path), so every square root and division
+is done once per pair. Full lists (the CUDA default): each particle lists all its neighbours
+and sums only its own side, with no atomics between threads, so CUDA runs stay bit-for-bit
+reproducible; the pair terms are the same expressions in both modes (:func:`pair_kernels`).
+The lists are built with a fixed capacity per particle, then packed into one array
+(``nbr[start[i] : start[i] + count[i]]``), which the pair passes stream through; the density
+pass caches each pair's gradient factor and tensile term for the position pass.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import warp as wp
 
@@ -182,61 +187,6 @@ def bucket_ranges(
 
 
 @wp.kernel
-def build_neighbours(
-    p: wp.array(dtype=wp.vec3),
-    world: wp.array(dtype=wp.int32),
-    cell: wp.array(dtype=wp.vec3i),
-    sorted_idx: wp.array(dtype=wp.int32),
-    p_sorted: wp.array(dtype=wp.vec3),
-    world_sorted: wp.array(dtype=wp.int32),
-    cell_sorted: wp.array(dtype=wp.vec3i),
-    start: wp.array(dtype=wp.int32),
-    end: wp.array(dtype=wp.int32),
-    mask: int,
-    h: float,
-    max_nb: int,
-    nbr: wp.array2d(dtype=wp.int32),
-    nbr_count: wp.array(dtype=wp.int32),
-):
-    """Half neighbour list of every particle, in a fixed (cell, index) order.
-
-    Only the 13 forward cells of the 27 around a particle's cell are scanned (and, in its own
-    cell, higher indices), so each pair within h is found once. A candidate's cell and world
-    are checked against the scanned ones (a bucket may hold several cells). A list longer
-    than ``max_nb`` is cut.
-    """
-    i = wp.tid()
-    pi = p[i]
-    wi = world[i]
-    ci = cell[i]
-    h2 = h * h
-    count = int(0)
-    for dz in range(0, 2):
-        for dy in range(-1, 2):
-            for dx in range(-1, 2):
-                offset = dz * 9 + dy * 3 + dx
-                if offset >= 0:
-                    c = wp.vec3i(ci[0] + dx, ci[1] + dy, ci[2] + dz)
-                    b = bucket_of(wi, c, mask)
-                    # while-loops compile to tighter CPU code than range() loops in Warp
-                    k = int(start[b])
-                    k_end = end[b]
-                    while k < k_end:
-                        r = pi - p_sorted[k]
-                        if wp.dot(r, r) < h2:
-                            j = sorted_idx[k]
-                            ck = cell_sorted[k]
-                            same_cell = ck[0] == c[0] and ck[1] == c[1] and ck[2] == c[2]
-                            forward = offset > 0 or j > i
-                            if same_cell and forward and world_sorted[k] == wi:
-                                if count < max_nb:
-                                    nbr[i, count] = j
-                                    count += 1
-                        k += 1
-    nbr_count[i] = count
-
-
-@wp.kernel
 def pack_neighbours(
     nbr_build: wp.array2d(dtype=wp.int32),
     count: wp.array(dtype=wp.int32),
@@ -299,54 +249,6 @@ def gather_state(
 
 
 @wp.kernel
-def density_sums(
-    p: wp.array(dtype=wp.vec3),
-    nbr: wp.array(dtype=wp.int32),
-    nbr_start: wp.array(dtype=wp.int32),
-    nbr_count: wp.array(dtype=wp.int32),
-    h: float,
-    grad_c: float,
-    scorr_k: float,
-    scorr_n: float,
-    scorr_wdq: float,
-    sums: wp.array(dtype=vec5),
-    pair: wp.array(dtype=wp.vec2),
-):
-    """Pair sums of the density constraint: Σ_j ∇_i C, Σ_j W_ij and Σ_j |∇_j C|² in ``sums``
-    (zero on entry; :func:`compute_lambda` clears them).
-
-    Each pair's gradient factor (∇W_ij = factor · r_ij) and tensile term
-    s_corr = −k (W(r)/W(Δq))^n go to ``pair`` for :func:`compute_delta`.
-    """
-    i = wp.tid()
-    pi = p[i]
-    acc = vec5(0.0)
-    # while-loops compile to tighter CPU code than range() loops in Warp
-    k = nbr_start[i]
-    k_end = k + nbr_count[i]
-    while k < k_end:
-        j = nbr[k]
-        r = pi - p[j]
-        d2 = wp.dot(r, r)
-        dist = wp.sqrt(d2)
-        w = spiky(dist, h)
-        factor = spiky_factor(dist, h, grad_c)
-        g = r * factor  # ∇_i W_ij = −∇_j W_ij
-        g2 = wp.dot(g, g)
-        ratio = poly6(d2, h) / scorr_wdq
-        s_corr = float(0.0)
-        if scorr_n == 4.0:
-            s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
-        else:
-            s_corr = -scorr_k * wp.pow(ratio, scorr_n)
-        pair[k] = wp.vec2(factor, s_corr)
-        acc += vec5(g[0], g[1], g[2], w, g2)
-        wp.atomic_add(sums, j, vec5(-g[0], -g[1], -g[2], w, g2))
-        k += 1
-    wp.atomic_add(sums, i, acc)
-
-
-@wp.kernel
 def compute_lambda(
     sums: wp.array(dtype=vec5),
     h: float,
@@ -367,39 +269,285 @@ def compute_lambda(
 
 
 @wp.kernel
-def compute_delta(
-    p: wp.array(dtype=wp.vec3),
-    nbr: wp.array(dtype=wp.int32),
-    nbr_start: wp.array(dtype=wp.int32),
-    nbr_count: wp.array(dtype=wp.int32),
-    lam: wp.array(dtype=float),
-    pair: wp.array(dtype=wp.vec2),
-    delta: wp.array(dtype=wp.vec3),
-):
-    """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi) from the pair terms cached by
-    :func:`density_sums`, each pair added to both particles (``delta`` is zero on entry;
-    :func:`apply_delta` clears it)."""
-    i = wp.tid()
-    pi = p[i]
-    li = lam[i]
-    dp = wp.vec3(0.0)
-    k = nbr_start[i]
-    k_end = k + nbr_count[i]
-    while k < k_end:
-        j = nbr[k]
-        e = pair[k]
-        t = (pi - p[j]) * ((li + lam[j] + e[1]) * e[0])
-        dp += t
-        wp.atomic_sub(delta, j, t)
-        k += 1
-    wp.atomic_add(delta, i, dp)
-
-
-@wp.kernel
 def apply_delta(p: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3), sor: float):
     i = wp.tid()
     p[i] = p[i] + delta[i] * sor
     delta[i] = wp.vec3(0.0)
+
+
+# ------------------------------------------------------------ pair passes (both list modes)
+
+
+class PairKernels(NamedTuple):
+    """The kernels that walk neighbour lists, compiled for one list mode."""
+
+    build_neighbours: wp.Kernel
+    density_sums: wp.Kernel
+    compute_delta: wp.Kernel
+    vorticity_and_normals: wp.Kernel
+    filter_sums: wp.Kernel
+
+
+def pair_kernels(half: bool) -> PairKernels:
+    """The pair kernels for half lists (``half``) or full lists; the mode is a compile-time
+    constant (``wp.static``) so neither variant pays for the other's branches."""
+
+    @wp.kernel
+    def build_neighbours(
+        p: wp.array(dtype=wp.vec3),
+        world: wp.array(dtype=wp.int32),
+        cell: wp.array(dtype=wp.vec3i),
+        sorted_idx: wp.array(dtype=wp.int32),
+        p_sorted: wp.array(dtype=wp.vec3),
+        world_sorted: wp.array(dtype=wp.int32),
+        cell_sorted: wp.array(dtype=wp.vec3i),
+        start: wp.array(dtype=wp.int32),
+        end: wp.array(dtype=wp.int32),
+        mask: int,
+        h: float,
+        max_nb: int,
+        nbr: wp.array2d(dtype=wp.int32),
+        nbr_count: wp.array(dtype=wp.int32),
+    ):
+        """Neighbour list of every particle, in a fixed (cell, index) order.
+
+        ``half = 1``: only the 13 forward cells of the 27 around a particle's cell are scanned
+        (and, in its own cell, higher indices), so each pair within h is found once. ``half = 0``:
+        all 27 cells, every neighbour. A candidate's cell and world are checked against the
+        scanned ones (a bucket may hold several cells). A list longer than ``max_nb`` is cut.
+        """
+        i = wp.tid()
+        pi = p[i]
+        wi = world[i]
+        ci = cell[i]
+        h2 = h * h
+        count = int(0)
+        for dz in range(wp.static(0 if half else -1), 2):
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    offset = dz * 9 + dy * 3 + dx
+                    if offset >= 0 or wp.static(not half):
+                        c = wp.vec3i(ci[0] + dx, ci[1] + dy, ci[2] + dz)
+                        b = bucket_of(wi, c, mask)
+                        # while-loops compile to tighter CPU code than range() loops in Warp
+                        k = int(start[b])
+                        k_end = end[b]
+                        while k < k_end:
+                            r = pi - p_sorted[k]
+                            if wp.dot(r, r) < h2:
+                                j = sorted_idx[k]
+                                ck = cell_sorted[k]
+                                same_cell = ck[0] == c[0] and ck[1] == c[1] and ck[2] == c[2]
+                                forward = offset > 0 or j > i or (wp.static(not half) and j != i)
+                                if same_cell and forward and world_sorted[k] == wi:
+                                    if count < max_nb:
+                                        nbr[i, count] = j
+                                        count += 1
+                            k += 1
+        nbr_count[i] = count
+
+    @wp.kernel
+    def density_sums(
+        p: wp.array(dtype=wp.vec3),
+        nbr: wp.array(dtype=wp.int32),
+        nbr_start: wp.array(dtype=wp.int32),
+        nbr_count: wp.array(dtype=wp.int32),
+        h: float,
+        grad_c: float,
+        scorr_k: float,
+        scorr_n: float,
+        scorr_wdq: float,
+        sums: wp.array(dtype=vec5),
+        pair: wp.array(dtype=wp.vec2),
+    ):
+        """Pair sums of the density constraint: Σ_j ∇_i C, Σ_j W_ij and Σ_j |∇_j C|² in ``sums``
+        (zero on entry; :func:`compute_lambda` clears them).
+
+        Each pair's gradient factor (∇W_ij = factor · r_ij) and tensile term
+        s_corr = −k (W(r)/W(Δq))^n go to ``pair`` for :func:`compute_delta`.
+        """
+        i = wp.tid()
+        pi = p[i]
+        acc = vec5(0.0)
+        # while-loops compile to tighter CPU code than range() loops in Warp
+        k = nbr_start[i]
+        k_end = k + nbr_count[i]
+        while k < k_end:
+            j = nbr[k]
+            r = pi - p[j]
+            d2 = wp.dot(r, r)
+            dist = wp.sqrt(d2)
+            w = spiky(dist, h)
+            factor = spiky_factor(dist, h, grad_c)
+            g = r * factor  # ∇_i W_ij = −∇_j W_ij
+            g2 = wp.dot(g, g)
+            ratio = poly6(d2, h) / scorr_wdq
+            s_corr = float(0.0)
+            if scorr_n == 4.0:
+                s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
+            else:
+                s_corr = -scorr_k * wp.pow(ratio, scorr_n)
+            pair[k] = wp.vec2(factor, s_corr)
+            acc += vec5(g[0], g[1], g[2], w, g2)
+            if wp.static(half):
+                wp.atomic_add(sums, j, vec5(-g[0], -g[1], -g[2], w, g2))
+            k += 1
+        wp.atomic_add(sums, i, acc)
+
+    @wp.kernel
+    def compute_delta(
+        p: wp.array(dtype=wp.vec3),
+        nbr: wp.array(dtype=wp.int32),
+        nbr_start: wp.array(dtype=wp.int32),
+        nbr_count: wp.array(dtype=wp.int32),
+        lam: wp.array(dtype=float),
+        pair: wp.array(dtype=wp.vec2),
+        delta: wp.array(dtype=wp.vec3),
+    ):
+        """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi) from the pair terms cached by
+        :func:`density_sums`, each pair added to both particles (``delta`` is zero on entry;
+        :func:`apply_delta` clears it)."""
+        i = wp.tid()
+        pi = p[i]
+        li = lam[i]
+        dp = wp.vec3(0.0)
+        k = nbr_start[i]
+        k_end = k + nbr_count[i]
+        while k < k_end:
+            j = nbr[k]
+            e = pair[k]
+            t = (pi - p[j]) * ((li + lam[j] + e[1]) * e[0])
+            dp += t
+            if wp.static(half):
+                wp.atomic_sub(delta, j, t)
+            k += 1
+        wp.atomic_add(delta, i, dp)
+
+    @wp.kernel
+    def vorticity_and_normals(
+        x: wp.array(dtype=wp.vec3),
+        v: wp.array(dtype=wp.vec3),
+        nbr: wp.array(dtype=wp.int32),
+        nbr_start: wp.array(dtype=wp.int32),
+        nbr_count: wp.array(dtype=wp.int32),
+        h: float,
+        grad_c: float,
+        omega: wp.array(dtype=wp.vec3),
+        normal: wp.array(dtype=wp.vec3),
+    ):
+        """Curl of velocity ω_i = Σ_j (v_j − v_i) × ∇W_ij and colour-field normal
+        n_i = h Σ_j ∇W_ij / w0 (Akinci 2013), as pair sums (zero on entry; cleared by
+        :func:`apply_filters`). A pair adds the same curl term to both of its particles."""
+        i = wp.tid()
+        xi = x[i]
+        vi = v[i]
+        om = wp.vec3(0.0)
+        nn = wp.vec3(0.0)
+        # while-loops compile to tighter CPU code than range() loops in Warp
+        k = nbr_start[i]
+        k_end = k + nbr_count[i]
+        while k < k_end:
+            j = nbr[k]
+            r = xi - x[j]
+            g = spiky_grad(r, wp.length(r), h, grad_c)
+            c = wp.cross(v[j] - vi, g)
+            om += c
+            nn += g
+            if wp.static(half):
+                wp.atomic_add(omega, j, c)
+                wp.atomic_sub(normal, j, g * h)
+            k += 1
+        wp.atomic_add(omega, i, om)
+        wp.atomic_add(normal, i, nn * h)
+
+    @wp.kernel
+    def filter_sums(
+        x: wp.array(dtype=wp.vec3),
+        v: wp.array(dtype=wp.vec3),
+        omega: wp.array(dtype=wp.vec3),
+        normal: wp.array(dtype=wp.vec3),
+        nbr: wp.array(dtype=wp.int32),
+        nbr_start: wp.array(dtype=wp.int32),
+        nbr_count: wp.array(dtype=wp.int32),
+        world: wp.array(dtype=wp.int32),
+        vorticity: wp.array(dtype=float),
+        cohesion: wp.array(dtype=float),
+        surface_tension: wp.array(dtype=float),
+        particle_friction: wp.array(dtype=float),
+        h: float,
+        grad_c: float,
+        spacing: float,
+        dt: float,
+        coh_accel: float,
+        st_accel: float,
+        coh_norm: float,
+        curv_norm: float,
+        vsum: wp.array(dtype=wp.vec4),
+        eta: wp.array(dtype=wp.vec3),
+        dv_sum: wp.array(dtype=wp.vec3),
+    ):
+        """Pair sums of the velocity filters (zero on entry; cleared by :func:`apply_filters`).
+
+        ``vsum``: Σ_j W_ij v_j (xyz) and Σ_j W_ij (w) for XSPH viscosity; ``eta``: ∇|ω| for
+        vorticity confinement; ``dv_sum``: the velocity change of cohesion, surface tension
+        (curvature) and particle friction, whose pair terms are antisymmetric.
+
+        FleX's coefficients are dimensionless; pourbench maps them onto rates as documented in
+        :mod:`pourbench.fluids.solver` (``SolverConfig.viscosity_rate`` etc.), the same for every
+        world.
+        """
+        i = wp.tid()
+        w = world[i]
+        vort_on = vorticity[w] > 0.0
+        kc = cohesion[w] * coh_accel * dt / coh_norm
+        ks = surface_tension[w] * st_accel * dt / curv_norm
+        kf = wp.min(particle_friction[w] * 0.1, 1.0)
+        xi = x[i]
+        vi = v[i]
+        ni = normal[i]
+        om_i = wp.length(omega[i])
+        acc_v = wp.vec4(0.0)
+        acc_eta = wp.vec3(0.0)
+        acc_dv = wp.vec3(0.0)
+        # while-loops compile to tighter CPU code than range() loops in Warp
+        k = nbr_start[i]
+        k_end = k + nbr_count[i]
+        while k < k_end:
+            j = nbr[k]
+            vj = v[j]
+            r = xi - x[j]
+            d = wp.length(r)
+            wij = poly6(d * d, h)
+            acc_v += wp.vec4(vj[0] * wij, vj[1] * wij, vj[2] * wij, wij)
+            if wp.static(half):
+                wp.atomic_add(vsum, j, wp.vec4(vi[0] * wij, vi[1] * wij, vi[2] * wij, wij))
+            if vort_on:
+                g = spiky_grad(r, d, h, grad_c)
+                acc_eta += g * wp.length(omega[j])
+                if wp.static(half):
+                    wp.atomic_sub(eta, j, g * om_i)
+            f = (normal[j] - ni) * ks  # curvature
+            if d > 1.0e-9:
+                rh = r / d
+                f -= rh * (cohesion_spline(d, h) * kc)
+                if d < spacing:
+                    dv = vj - vi
+                    f += (dv - rh * wp.dot(dv, rh)) * ((1.0 - d / spacing) * kf)
+            acc_dv += f
+            if wp.static(half):
+                wp.atomic_sub(dv_sum, j, f)
+            k += 1
+        wp.atomic_add(vsum, i, acc_v)
+        wp.atomic_add(eta, i, acc_eta)
+        wp.atomic_add(dv_sum, i, acc_dv)
+
+    return PairKernels(
+        build_neighbours, density_sums, compute_delta, vorticity_and_normals, filter_sums
+    )
+
+
+HALF_LISTS = pair_kernels(True)
+FULL_LISTS = pair_kernels(False)
 
 
 # ------------------------------------------------------------------------ collider SDFs
@@ -739,122 +887,6 @@ def update_velocity(
     vi = vi / (1.0 + dissipation[world[i]] * float(contacts[i]) * dt)
     v[i] = vi
     x[i] = p[i]
-
-
-@wp.kernel
-def vorticity_and_normals(
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    nbr: wp.array(dtype=wp.int32),
-    nbr_start: wp.array(dtype=wp.int32),
-    nbr_count: wp.array(dtype=wp.int32),
-    h: float,
-    grad_c: float,
-    omega: wp.array(dtype=wp.vec3),
-    normal: wp.array(dtype=wp.vec3),
-):
-    """Curl of velocity ω_i = Σ_j (v_j − v_i) × ∇W_ij and colour-field normal
-    n_i = h Σ_j ∇W_ij / w0 (Akinci 2013), as pair sums (zero on entry; cleared by
-    :func:`apply_filters`). A pair adds the same curl term to both of its particles."""
-    i = wp.tid()
-    xi = x[i]
-    vi = v[i]
-    om = wp.vec3(0.0)
-    nn = wp.vec3(0.0)
-    # while-loops compile to tighter CPU code than range() loops in Warp
-    k = nbr_start[i]
-    k_end = k + nbr_count[i]
-    while k < k_end:
-        j = nbr[k]
-        r = xi - x[j]
-        g = spiky_grad(r, wp.length(r), h, grad_c)
-        c = wp.cross(v[j] - vi, g)
-        om += c
-        nn += g
-        wp.atomic_add(omega, j, c)
-        wp.atomic_sub(normal, j, g * h)
-        k += 1
-    wp.atomic_add(omega, i, om)
-    wp.atomic_add(normal, i, nn * h)
-
-
-@wp.kernel
-def filter_sums(
-    x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
-    omega: wp.array(dtype=wp.vec3),
-    normal: wp.array(dtype=wp.vec3),
-    nbr: wp.array(dtype=wp.int32),
-    nbr_start: wp.array(dtype=wp.int32),
-    nbr_count: wp.array(dtype=wp.int32),
-    world: wp.array(dtype=wp.int32),
-    vorticity: wp.array(dtype=float),
-    cohesion: wp.array(dtype=float),
-    surface_tension: wp.array(dtype=float),
-    particle_friction: wp.array(dtype=float),
-    h: float,
-    grad_c: float,
-    spacing: float,
-    dt: float,
-    coh_accel: float,
-    st_accel: float,
-    coh_norm: float,
-    curv_norm: float,
-    vsum: wp.array(dtype=wp.vec4),
-    eta: wp.array(dtype=wp.vec3),
-    dv_sum: wp.array(dtype=wp.vec3),
-):
-    """Pair sums of the velocity filters (zero on entry; cleared by :func:`apply_filters`).
-
-    ``vsum``: Σ_j W_ij v_j (xyz) and Σ_j W_ij (w) for XSPH viscosity; ``eta``: ∇|ω| for
-    vorticity confinement; ``dv_sum``: the velocity change of cohesion, surface tension
-    (curvature) and particle friction, whose pair terms are antisymmetric.
-
-    FleX's coefficients are dimensionless; pourbench maps them onto rates as documented in
-    :mod:`pourbench.fluids.solver` (``SolverConfig.viscosity_rate`` etc.), the same for every
-    world.
-    """
-    i = wp.tid()
-    w = world[i]
-    vort_on = vorticity[w] > 0.0
-    kc = cohesion[w] * coh_accel * dt / coh_norm
-    ks = surface_tension[w] * st_accel * dt / curv_norm
-    kf = wp.min(particle_friction[w] * 0.1, 1.0)
-    xi = x[i]
-    vi = v[i]
-    ni = normal[i]
-    om_i = wp.length(omega[i])
-    acc_v = wp.vec4(0.0)
-    acc_eta = wp.vec3(0.0)
-    acc_dv = wp.vec3(0.0)
-    # while-loops compile to tighter CPU code than range() loops in Warp
-    k = nbr_start[i]
-    k_end = k + nbr_count[i]
-    while k < k_end:
-        j = nbr[k]
-        vj = v[j]
-        r = xi - x[j]
-        d = wp.length(r)
-        wij = poly6(d * d, h)
-        acc_v += wp.vec4(vj[0] * wij, vj[1] * wij, vj[2] * wij, wij)
-        wp.atomic_add(vsum, j, wp.vec4(vi[0] * wij, vi[1] * wij, vi[2] * wij, wij))
-        if vort_on:
-            g = spiky_grad(r, d, h, grad_c)
-            acc_eta += g * wp.length(omega[j])
-            wp.atomic_sub(eta, j, g * om_i)
-        f = (normal[j] - ni) * ks  # curvature
-        if d > 1.0e-9:
-            rh = r / d
-            f -= rh * (cohesion_spline(d, h) * kc)
-            if d < spacing:
-                dv = vj - vi
-                f += (dv - rh * wp.dot(dv, rh)) * ((1.0 - d / spacing) * kf)
-        acc_dv += f
-        wp.atomic_sub(dv_sum, j, f)
-        k += 1
-    wp.atomic_add(vsum, i, acc_v)
-    wp.atomic_add(eta, i, acc_eta)
-    wp.atomic_add(dv_sum, i, acc_dv)
 
 
 @wp.kernel

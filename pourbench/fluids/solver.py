@@ -60,8 +60,11 @@ class SolverConfig:
         relaxation: constraint-force mixing ε as a fraction of a full neighbourhood's Σ|∇C|².
         scorr_k, scorr_n, scorr_dq: tensile-instability term s_corr = −k (W(r)/W(Δq))^n,
             with Δq = scorr_dq × h.
-        max_neighbours: capacity of a particle's half neighbour list (each pair is listed
-            once, so about half of its neighbours).
+        max_neighbours: capacity of a particle's neighbour list.
+        pair_lists: ``"half"`` (each pair listed once, its terms added to both particles:
+            half the work, the CPU default) or ``"full"`` (every particle lists all its
+            neighbours and sums its own side: no atomics between threads, so CUDA runs are
+            reproducible; the CUDA default); ``"auto"`` picks by device.
         sor: over/under-relaxation factor applied to each Jacobi position correction.
         reorder_every: steps between spatial re-sorts of the particle arrays (0: never).
             Particle order inside a world therefore changes over time.
@@ -82,6 +85,7 @@ class SolverConfig:
     scorr_n: float = 4.0
     scorr_dq: float = 0.2
     max_neighbours: int = 64
+    pair_lists: str = "auto"
     sor: float = 1.0
     reorder_every: int = 16
     viscosity_rate: float = 1.0
@@ -97,6 +101,10 @@ class SolverConfig:
             check_finite(name, getattr(self, name), minimum=1e-9)
         for name in ("relaxation", "scorr_k", "scorr_n", "scorr_dq", "viscosity_rate"):
             check_finite(name, getattr(self, name), minimum=0.0)
+        if self.pair_lists not in ("auto", "half", "full"):
+            raise InvalidParameterError(
+                f"pair_lists must be 'auto', 'half' or 'full', got {self.pair_lists!r}"
+            )
         if int(self.iterations) < 1:
             raise InvalidParameterError(f"iterations must be >= 1, got {self.iterations!r}")
 
@@ -174,6 +182,11 @@ class PBFSolver:
         self.num_worlds = int(num_worlds)
         self.config = config or SolverConfig()
         self.device = wp.get_device(self.config.device)
+        mode = self.config.pair_lists
+        if mode == "auto":
+            mode = "full" if self.device.is_cuda else "half"
+        self.half_lists = mode == "half"
+        self.pairk = K.HALF_LISTS if self.half_lists else K.FULL_LISTS
         self.w0, self.grad_c, sum_grad2 = _rest_sums(self.config)
         n = math.ceil(self.config.smoothing)
         g = np.arange(-n, n + 1) * self.config.spacing
@@ -570,7 +583,7 @@ class PBFSolver:
         for _ in range(cfg.iterations):
             self._launch(
                 "density_sums",
-                K.density_sums,
+                self.pairk.density_sums,
                 [
                     self.p,
                     self.nbr,
@@ -592,8 +605,15 @@ class PBFSolver:
             )
             self._launch(
                 "compute_delta",
-                K.compute_delta,
-                [self.p, self.nbr, self.nbr_start, self.nbr_count, self.lam, self.pair],
+                self.pairk.compute_delta,
+                [
+                    self.p,
+                    self.nbr,
+                    self.nbr_start,
+                    self.nbr_count,
+                    self.lam,
+                    self.pair,
+                ],
                 [self.delta],
             )
             self._launch("apply_delta", K.apply_delta, [self.p, self.delta, cfg.sor])
@@ -643,13 +663,21 @@ class PBFSolver:
         if self._needs_curl_and_normals:
             self._launch(
                 "vorticity_and_normals",
-                K.vorticity_and_normals,
-                [self.x, self.v, self.nbr, self.nbr_start, self.nbr_count, cfg.h, self.grad_c],
+                self.pairk.vorticity_and_normals,
+                [
+                    self.x,
+                    self.v,
+                    self.nbr,
+                    self.nbr_start,
+                    self.nbr_count,
+                    cfg.h,
+                    self.grad_c,
+                ],
                 [self.omega, self.normal],
             )
         self._launch(
             "filter_sums",
-            K.filter_sums,
+            self.pairk.filter_sums,
             [
                 self.x,
                 self.v,
@@ -722,7 +750,7 @@ class PBFSolver:
         )
         self._launch(
             "build_neighbours",
-            K.build_neighbours,
+            self.pairk.build_neighbours,
             [
                 self.p,
                 self.world,
@@ -789,6 +817,8 @@ class PBFSolver:
         if self._dirty:
             return np.zeros(len(self._x), np.int32)
         count, start = self.nbr_count.numpy(), self.nbr_start.numpy()
+        if not self.half_lists:
+            return count.copy()
         listed = self.nbr.numpy()[: int(start[-1] + count[-1])] if self.n else []
         return (count + np.bincount(listed, minlength=self.n)).astype(np.int32)
 
