@@ -64,9 +64,11 @@ def _time_steps(step: Any, sync: Any, budget_s: float, min_steps: int = 3) -> fl
     return float(np.median(times))
 
 
-def run_case(device: str, n: int, worlds: int = 1, budget_s: float = 2.0) -> dict[str, Any]:
+def run_case(
+    device: str, n: int, worlds: int = 1, budget_s: float = 2.0, pair_lists: str = "auto"
+) -> dict[str, Any]:
     """Time the solver and the baseline on the dam-break block; one row of the table."""
-    cfg = SolverConfig(device=device, iterations=4)
+    cfg = SolverConfig(device=device, iterations=4, pair_lists=pair_lists)
     pts, tank = _block(n // worlds, cfg.spacing)
     solver = PBFSolver(worlds, cfg)
     for w in range(worlds):
@@ -80,6 +82,7 @@ def run_case(device: str, n: int, worlds: int = 1, budget_s: float = 2.0) -> dic
         "particles": total,
         "worlds": worlds,
         "iterations": cfg.iterations,
+        "pair_lists": "half" if solver.half_lists else "full",
         "ms_per_step": sec * 1e3,
         "particle_steps_per_s": total / sec,
         "neighbours_mean": float(solver.neighbour_counts().mean()),
@@ -94,13 +97,16 @@ def run_case(device: str, n: int, worlds: int = 1, budget_s: float = 2.0) -> dic
     return row
 
 
-def cases(quick: bool) -> list[tuple[str, int, int]]:
+def cases(quick: bool) -> list[tuple[str, int, int, str]]:
+    """(device, particles, worlds, pair-list mode) of every row; the device's default mode,
+    plus the CPU at 16k with the CUDA default (full lists) for comparison."""
     if quick:
-        return [("cpu", 16_000, 1)]
-    out = [("cpu", 2_000, 1), ("cpu", 16_000, 1), ("cpu", 128_000, 1)]
+        return [("cpu", 16_000, 1, "auto")]
+    out = [("cpu", 2_000, 1, "auto"), ("cpu", 16_000, 1, "auto"), ("cpu", 128_000, 1, "auto")]
+    out += [("cpu", 16_000, 1, "full")]
     if wp.get_cuda_device_count() > 0:
-        out += [("cuda", 2_000, 1), ("cuda", 16_000, 1), ("cuda", 128_000, 1)]
-        out += [("cuda", 1_024_000, 64)]
+        out += [("cuda", n, 1, "auto") for n in (2_000, 16_000, 128_000)]
+        out += [("cuda", 1_024_000, 64, "auto")]
     return out
 
 
@@ -109,6 +115,7 @@ COLUMNS = [
     "particles",
     "worlds",
     "iterations",
+    "pair_lists",
     "ms_per_step",
     "particle_steps_per_s",
     "baseline_particle_steps_per_s",
@@ -166,9 +173,9 @@ def validation() -> tuple[dict[str, Any], str]:
 
 def run(args: argparse.Namespace) -> int:
     rows = []
-    for device, n, worlds in cases(args.quick):
-        print(f"fluids: {device} {n} particles, {worlds} world(s)…", file=sys.stderr)
-        rows.append(run_case(device, n, worlds))
+    for device, n, worlds, lists in cases(args.quick):
+        print(f"fluids: {device} {n} particles, {worlds} world(s), {lists} lists…", file=sys.stderr)
+        rows.append(run_case(device, n, worlds, pair_lists=lists))
     checks, checks_md = ({}, "") if args.quick else validation()
     body = "\n".join(
         [
@@ -176,7 +183,10 @@ def run(args: argparse.Namespace) -> int:
             "5 mm (h = 1 cm). `particle_steps_per_s` = particles × steps / wall time of "
             "`PBFSolver.step` (median step). The baseline is an all-cells-candidates PBF "
             "(`pourbench/bench/fluids_baseline.py`: hash-grid query in every pass, no "
-            "viscosity/vorticity/SDF collisions) timed in the same process.",
+            "viscosity/vorticity/SDF collisions) timed in the same process. `pair_lists`: "
+            "half lists (each pair once, added to both particles; the CPU default) or full "
+            "lists (each particle sums its own side; the CUDA default, reproducible without "
+            "atomics between threads).",
             "",
             markdown_table(rows, COLUMNS),
             "",

@@ -27,7 +27,7 @@ from typing import NamedTuple
 
 import warp as wp
 
-wp.config.quiet = True
+wp.config.log_level = wp.LOG_WARNING  # no init greeting or module-load lines on stdout
 wp.set_module_options({"enable_backward": False})
 
 vec5 = wp.types.vector(length=5, dtype=wp.float32)

@@ -34,7 +34,7 @@ from pourbench.fluids import kernels as K
 from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell
 
-wp.config.quiet = True
+wp.config.log_level = wp.LOG_WARNING  # no init greeting or module-load lines on stdout
 
 KIND_NAMES = {
     "plane": 0,

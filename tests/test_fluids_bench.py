@@ -1,0 +1,25 @@
+"""``pourbench bench fluids --quick --json``: one JSON object with the documented rows."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+
+def test_quick_bench_prints_one_json_object(tmp_path) -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "pourbench.cli", "bench", "fluids", "--quick", "--json",
+         "--out", str(tmp_path)],
+        capture_output=True, text=True, check=True, timeout=600,
+    )  # fmt: skip
+    doc = json.loads(out.stdout)  # exactly one JSON document on stdout (no Warp greeting)
+    (row,) = doc["rows"]  # --quick: the 16k CPU case only
+    assert row["device"] == "cpu" and row["iterations"] == 4
+    assert 15_000 <= row["particles"] <= 17_000
+    for key in ("particle_steps_per_s", "baseline_particle_steps_per_s", "ms_per_step"):
+        assert math.isfinite(row[key]) and row[key] > 0
+    # the rate is the particles over the timed step, whatever the machine
+    assert math.isclose(row["particle_steps_per_s"] * row["ms_per_step"] / 1e3, row["particles"])
+    assert (tmp_path / "fluids.md").exists() and (tmp_path / "fluids.json").exists()
