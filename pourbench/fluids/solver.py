@@ -537,7 +537,9 @@ class PBFSolver:
             [self.x, self.world, 1.0 / self.config.h],
             [self.order_keys, self.order],
         )
-        wp.utils.radix_sort_pairs(self.order_keys, self.order, self.n)
+        # keys: world above 33 Morton bits; sorting only the bits in use is several times faster
+        key_bits = 33 + max(1, (self.num_worlds - 1).bit_length())
+        wp.utils.radix_sort_pairs(self.order_keys, self.order, self.n, end_bit=key_bits)
         self._launch(
             "gather_state", K.gather_state, [self.order, self.x, self.v, self.p, self.v_tmp]
         )
@@ -733,7 +735,10 @@ class PBFSolver:
             [self.p, self.world, inv_cell, self.bucket_mask],
             [self.cell, self.keys, self.sorted_idx],
         )
-        wp.utils.radix_sort_pairs(self.keys, self.sorted_idx, n)
+        # bucket keys are below the table size, a power of two: sort only those bits
+        wp.utils.radix_sort_pairs(
+            self.keys, self.sorted_idx, n, end_bit=(self.bucket_mask + 1).bit_length() - 1
+        )
         self.bucket_start.zero_()
         self.bucket_end.zero_()
         self._launch(
