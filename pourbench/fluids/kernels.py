@@ -734,6 +734,7 @@ def project_colliders(
     col_pose: wp.array(dtype=wp.transform),
     col_body: wp.array(dtype=wp.int32),
     col_com: wp.array(dtype=wp.vec3),
+    col_bound: wp.array(dtype=float),
     mass: wp.array(dtype=float),
     radius: float,
     dt: float,
@@ -752,6 +753,8 @@ def project_colliders(
     for c in range(world_col_start[w], world_col_end[w]):
         tf = col_pose[c]
         q = wp.transform_point(wp.transform_inverse(tf), pi)
+        if wp.length(q) > col_bound[c] + radius:
+            continue  # out of the collider's bounding sphere: no contact possible
         s = collider_sdf(col_kind[c], col_params, col_start[c], col_count[c], col_mesh[c], q)
         if s[0] < radius:
             push[i] = push[i] + (radius - s[0])
@@ -780,6 +783,7 @@ def collide(
     col_pose: wp.array(dtype=wp.transform),
     col_body: wp.array(dtype=wp.int32),
     col_com: wp.array(dtype=wp.vec3),
+    col_bound: wp.array(dtype=float),
     mass: wp.array(dtype=float),
     static_friction: wp.array(dtype=float),
     dynamic_friction: wp.array(dtype=float),
@@ -812,9 +816,14 @@ def collide(
         tf_inv = wp.transform_inverse(tf)
         a = wp.transform_point(wp.transform_inverse(col_pose_prev[c]), x_prev[i])
         b = wp.transform_point(tf_inv, pi)
+        seg = b - a
+        # the swept motion stays out of the collider's bounding sphere (and adhesion band):
+        # no contact possible, skip its SDF
+        t_near = wp.clamp(-wp.dot(a, seg) / wp.max(wp.dot(seg, seg), 1.0e-20), 0.0, 1.0)
+        if wp.length(a + seg * t_near) > col_bound[c] + radius + adhesion_range:
+            continue
         sa = collider_sdf(kind, col_params, col_start[c], col_count[c], col_mesh[c], a)
         na = wp.vec3(sa[1], sa[2], sa[3])
-        seg = b - a
         seg_len = wp.length(seg)
         q = b
         hit = int(0)

@@ -146,6 +146,29 @@ def shape_kind(shape: ContainerShape) -> tuple[int, np.ndarray]:
     raise InvalidParameterError(f"unsupported container shape {type(shape).__name__}")
 
 
+def _bound(c: Collider) -> float:
+    """Radius about the collider's origin that holds all of it (particles farther out than
+    this plus their radius cannot touch it, so the kernels skip its SDF); planes: unbounded."""
+    p = c.params.astype(float)
+    if c.kind == KIND_NAMES["plane"]:
+        return 1.0e30
+    if c.kind == KIND_NAMES["box"]:
+        return float(np.linalg.norm(p[:3]))
+    if c.kind == KIND_NAMES["sphere"]:
+        return float(p[0])
+    if c.kind == KIND_NAMES["capsule"]:
+        return float(p[0] + p[1])
+    if c.kind == KIND_NAMES["cylinder"]:
+        return float(np.hypot(p[0], p[1]))
+    if c.kind == KIND_NAMES["mesh"]:
+        return float(np.linalg.norm(c.mesh.points.numpy(), axis=1).max())
+    if c.kind == KIND_NAMES["revolved"]:  # wall, then (ρ, z) points
+        pts = p[1:].reshape(-1, 2)
+        return float(np.hypot(pts[:, 0], pts[:, 1]).max() + 0.5 * p[0])
+    wall, hx, hy, depth = p[:4]  # box shell
+    return float(np.linalg.norm([hx + wall, hy + wall, depth + 2.0 * wall]))
+
+
 def _rest_sums(cfg: SolverConfig) -> tuple[float, float, float]:
     """Rest sums of a particle in a full cubic lattice of ``spacing``.
 
@@ -425,6 +448,7 @@ class PBFSolver:
             [c.mesh.id if c.mesh is not None else 0 for c in cols], dtype=wp.uint64, device=dev
         )
         self.col_body = wp.array([c.body for c in cols], dtype=wp.int32, device=dev)
+        self.col_bound = wp.array([_bound(c) for c in cols], dtype=float, device=dev)
         wstart = np.zeros(self.num_worlds, np.int32)
         wend = np.zeros(self.num_worlds, np.int32)
         for w in range(self.num_worlds):
@@ -628,6 +652,7 @@ class PBFSolver:
                     self.col_pose,
                     self.col_body,
                     self.col_com,
+                    self.col_bound,
                     self.mass,
                     cfg.radius,
                     cfg.dt,
@@ -645,6 +670,7 @@ class PBFSolver:
                 self.col_pose,
                 self.col_body,
                 self.col_com,
+                self.col_bound,
                 self.mass,
                 P["static_friction"],
                 P["dynamic_friction"],
