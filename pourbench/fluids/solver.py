@@ -4,10 +4,11 @@ One :class:`PBFSolver` holds ``num_worlds`` independent worlds. Particles of dif
 worlds never interact; each world has its own liquid, colliders and collider poses; one
 kernel launch per stage advances every world. A step is Macklin & Müller's PBF loop:
 
-predict (gravity, damping) → half neighbour lists (spatial hash of (world, cell),
-radix-sorted; each pair once, its terms added to both particles) → ``iterations`` Jacobi
-density iterations (λ with constraint-force mixing, Δp with the s_corr tensile term,
-projection out of colliders) → swept collision with friction and adhesion (reaction summed
+predict (gravity, damping) → neighbour lists (spatial hash of (world, cell), radix-sorted;
+half lists on the CPU, each pair once and its terms added to both particles, full lists on
+CUDA, see ``SolverConfig.pair_lists``) → ``iterations`` Jacobi density iterations (λ with
+constraint-force mixing, Δp with the s_corr tensile term, projection out of colliders) →
+swept collision with friction and adhesion (reaction summed
 per body) → velocity update (dissipation) → vorticity confinement, XSPH viscosity, cohesion,
 surface tension and particle friction.
 
