@@ -392,7 +392,10 @@ def pair_kernels(half: bool) -> PairKernels:
             if wp.static(half):
                 wp.atomic_add(sums, j, vec5(-g[0], -g[1], -g[2], w, g2))
             k += 1
-        wp.atomic_add(sums, i, acc)
+        if wp.static(half):
+            wp.atomic_add(sums, i, acc)
+        else:  # full lists: only this thread writes particle i
+            sums[i] = acc
 
     @wp.kernel
     def compute_delta(
@@ -421,7 +424,10 @@ def pair_kernels(half: bool) -> PairKernels:
             if wp.static(half):
                 wp.atomic_sub(delta, j, t)
             k += 1
-        wp.atomic_add(delta, i, dp)
+        if wp.static(half):
+            wp.atomic_add(delta, i, dp)
+        else:  # full lists: only this thread writes particle i
+            delta[i] = dp
 
     @wp.kernel
     def vorticity_and_normals(
@@ -435,9 +441,10 @@ def pair_kernels(half: bool) -> PairKernels:
         omega: wp.array(dtype=wp.vec3),
         normal: wp.array(dtype=wp.vec3),
     ):
-        """Curl of velocity ω_i = Σ_j (v_j − v_i) × ∇W_ij and colour-field normal
-        n_i = h Σ_j ∇W_ij / w0 (Akinci 2013), as pair sums (zero on entry; cleared by
-        :func:`apply_filters`). A pair adds the same curl term to both of its particles."""
+        """Curl of velocity ω_i = Σ_j (v_j − v_i) × ∇_j W_ij = Σ_j ∇_i W_ij × (v_j − v_i)
+        (Macklin & Müller 2013, Eq. 15) and colour-field normal n_i = h Σ_j ∇_i W_ij / w0
+        (Akinci 2013), as pair sums (zero on entry; cleared by :func:`apply_filters`). A pair
+        adds the same curl term to both of its particles."""
         i = wp.tid()
         xi = x[i]
         vi = v[i]
@@ -449,16 +456,20 @@ def pair_kernels(half: bool) -> PairKernels:
         while k < k_end:
             j = nbr[k]
             r = xi - x[j]
-            g = spiky_grad(r, wp.length(r), h, grad_c)
-            c = wp.cross(v[j] - vi, g)
+            g = spiky_grad(r, wp.length(r), h, grad_c)  # ∇_i W_ij
+            c = wp.cross(g, v[j] - vi)
             om += c
             nn += g
             if wp.static(half):
                 wp.atomic_add(omega, j, c)
                 wp.atomic_sub(normal, j, g * h)
             k += 1
-        wp.atomic_add(omega, i, om)
-        wp.atomic_add(normal, i, nn * h)
+        if wp.static(half):
+            wp.atomic_add(omega, i, om)
+            wp.atomic_add(normal, i, nn * h)
+        else:  # full lists: only this thread writes particle i
+            omega[i] = om
+            normal[i] = nn * h
 
     @wp.kernel
     def filter_sums(
@@ -522,10 +533,11 @@ def pair_kernels(half: bool) -> PairKernels:
             if wp.static(half):
                 wp.atomic_add(vsum, j, wp.vec4(vi[0] * wij, vi[1] * wij, vi[2] * wij, wij))
             if vort_on:
-                g = spiky_grad(r, d, h, grad_c)
-                acc_eta += g * wp.length(omega[j])
+                # η = ∇|ω| = Σ_j (|ω_j| − |ω_i|) ∇_i W_ij: the same term for both particles
+                e = spiky_grad(r, d, h, grad_c) * (wp.length(omega[j]) - om_i)
+                acc_eta += e
                 if wp.static(half):
-                    wp.atomic_sub(eta, j, g * om_i)
+                    wp.atomic_add(eta, j, e)
             f = (normal[j] - ni) * ks  # curvature
             if d > 1.0e-9:
                 rh = r / d
@@ -537,9 +549,14 @@ def pair_kernels(half: bool) -> PairKernels:
             if wp.static(half):
                 wp.atomic_sub(dv_sum, j, f)
             k += 1
-        wp.atomic_add(vsum, i, acc_v)
-        wp.atomic_add(eta, i, acc_eta)
-        wp.atomic_add(dv_sum, i, acc_dv)
+        if wp.static(half):
+            wp.atomic_add(vsum, i, acc_v)
+            wp.atomic_add(eta, i, acc_eta)
+            wp.atomic_add(dv_sum, i, acc_dv)
+        else:  # full lists: only this thread writes particle i
+            vsum[i] = acc_v
+            eta[i] = acc_eta
+            dv_sum[i] = acc_dv
 
     return PairKernels(
         build_neighbours, density_sums, compute_delta, vorticity_and_normals, filter_sums
@@ -701,6 +718,17 @@ def collider_sdf(
 # --------------------------------------------------------------------------- collisions
 
 
+WRENCH_UNIT = wp.constant(1.0e-9)
+"""Body reactions are summed as integers of this many N (and N·m): integer sums do not
+depend on the order in which threads add, so coupled runs are reproducible on CUDA too."""
+
+
+@wp.func
+def add_fixed(total: wp.array2d(dtype=wp.int64), body: int, value: wp.vec3):
+    for k in range(3):
+        wp.atomic_add(total, body, k, wp.int64(wp.round(value[k] / WRENCH_UNIT)))
+
+
 @wp.func
 def add_reaction(
     body: int,
@@ -709,15 +737,16 @@ def add_reaction(
     com: wp.vec3,
     m: float,
     dt: float,
-    body_force: wp.array(dtype=wp.vec3),
-    body_torque: wp.array(dtype=wp.vec3),
+    body_force: wp.array2d(dtype=wp.int64),
+    body_torque: wp.array2d(dtype=wp.int64),
 ):
     """Sum the reaction of a collision correction ``corr`` (m) on a body: −m Δx / dt², with
-    its torque about the body's centre of mass. Bodies with slot −1 take no reaction."""
+    its torque about the body's centre of mass, in units of ``WRENCH_UNIT``. Bodies with slot
+    −1 take no reaction."""
     if body >= 0:
         f = corr * (-m / (dt * dt))
-        wp.atomic_add(body_force, body, f)
-        wp.atomic_add(body_torque, body, wp.cross(point - com, f))
+        add_fixed(body_force, body, f)
+        add_fixed(body_torque, body, wp.cross(point - com, f))
 
 
 @wp.kernel
@@ -738,8 +767,8 @@ def project_colliders(
     mass: wp.array(dtype=float),
     radius: float,
     dt: float,
-    body_force: wp.array(dtype=wp.vec3),
-    body_torque: wp.array(dtype=wp.vec3),
+    body_force: wp.array2d(dtype=wp.int64),
+    body_torque: wp.array2d(dtype=wp.int64),
     push: wp.array(dtype=float),
 ):
     """In-iteration projection out of colliders; reactions summed per body.
@@ -794,8 +823,8 @@ def collide(
     dt: float,
     push: wp.array(dtype=float),
     contacts: wp.array(dtype=wp.int32),
-    body_force: wp.array(dtype=wp.vec3),
-    body_torque: wp.array(dtype=wp.vec3),
+    body_force: wp.array2d(dtype=wp.int64),
+    body_torque: wp.array2d(dtype=wp.int64),
 ):
     """Swept collision against every collider of the particle's world, with friction.
 
@@ -820,7 +849,8 @@ def collide(
         # the swept motion stays out of the collider's bounding sphere (and adhesion band):
         # no contact possible, skip its SDF
         t_near = wp.clamp(-wp.dot(a, seg) / wp.max(wp.dot(seg, seg), 1.0e-20), 0.0, 1.0)
-        if wp.length(a + seg * t_near) > col_bound[c] + radius + adhesion_range:
+        reach = col_bound[c] + radius + wp.max(adhesion_range, 2.0e-5)  # > trace tolerance
+        if wp.length(a + seg * t_near) > reach:
             continue
         sa = collider_sdf(kind, col_params, col_start[c], col_count[c], col_mesh[c], a)
         na = wp.vec3(sa[1], sa[2], sa[3])
@@ -905,6 +935,7 @@ def apply_filters(
     vorticity: wp.array(dtype=float),
     visc_rate: float,
     dt: float,
+    h: float,
     vsum: wp.array(dtype=wp.vec4),
     eta: wp.array(dtype=wp.vec3),
     dv_sum: wp.array(dtype=wp.vec3),
@@ -925,9 +956,13 @@ def apply_filters(
         kv = visc_rate * viscosity[w]
         dv += (wp.vec3(a[0], a[1], a[2]) / a[3] - vi) * (kv / (1.0 + kv))
     e = eta[i]
-    e_len = wp.length(e)
-    if e_len > 1.0e-9 and vorticity[w] > 0.0:
-        dv += wp.cross(e / e_len, omega[i]) * (vorticity[w] * dt)
+    if vorticity[w] > 0.0:
+        # confinement force along N × ω, N = η / |η|; where |η| is below 1 % of |ω|/h (the
+        # vortex's core, or a symmetric neighbourhood) N is scaled down instead, so that
+        # rounding noise in a vanishing gradient cannot choose the force's direction
+        om = omega[i]
+        scale = wp.max(wp.length(e), wp.max(0.01 * wp.length(om) / h, 1.0e-20))
+        dv += wp.cross(e / scale, om) * (vorticity[w] * dt)
     v[i] = vi + dv
     vsum[i] = wp.vec4(0.0)
     eta[i] = wp.vec3(0.0)

@@ -14,7 +14,7 @@ surface tension and particle friction.
 
 How FleX's dimensionless coefficients become rates here (documented, the same for all
 liquids): viscosity ν relaxes each particle's velocity toward its neighbours' kernel mean
-by ``a = κν·dt / (1 + κν·dt)`` with κ = ``SolverConfig.viscosity_rate``; cohesion and surface
+by ``a = κν / (1 + κν)`` per step with κ = ``SolverConfig.viscosity_rate``; cohesion and surface
 tension are accelerations ``coefficient × cohesion_accel`` (Akinci et al. 2013 forms);
 adhesion pulls particles within ``adhesion_range`` of a surface back onto it and adds grip
 to the wall friction; damping is a drag rate (1/s); dissipation damps velocity per shape
@@ -25,6 +25,7 @@ the profiles for provenance but not applied, so that a container's weight is the
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,6 +37,9 @@ from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell
 
 wp.config.log_level = wp.LOG_WARNING  # no init greeting or module-load lines on stdout
+
+OVERFLOW_CHECK_EVERY = 16
+"""Steps between checks that no neighbour list is full (one small read-back each)."""
 
 KIND_NAMES = {
     "plane": 0,
@@ -69,7 +73,9 @@ class SolverConfig:
         sor: over/under-relaxation factor applied to each Jacobi position correction.
         reorder_every: steps between spatial re-sorts of the particle arrays (0: never).
             Particle order inside a world therefore changes over time.
-        viscosity_rate: κ of the XSPH mapping, 1/s per unit FleX viscosity.
+        viscosity_rate: κ of the XSPH mapping (dimensionless, per step per unit FleX
+            viscosity): each step relaxes a velocity toward its neighbours' kernel mean by
+            κν / (1 + κν).
         cohesion_accel, surface_tension_accel: acceleration per unit coefficient, m/s².
         adhesion_gain: fraction of the gap closed per step per unit FleX adhesion.
         max_speed: speed above which a world is flagged as diverged, m/s.
@@ -102,6 +108,8 @@ class SolverConfig:
             check_finite(name, getattr(self, name), minimum=1e-9)
         for name in ("relaxation", "scorr_k", "scorr_n", "scorr_dq", "viscosity_rate"):
             check_finite(name, getattr(self, name), minimum=0.0)
+        if int(self.max_neighbours) < 1:
+            raise InvalidParameterError(f"max_neighbours must be >= 1, got {self.max_neighbours!r}")
         if self.pair_lists not in ("auto", "half", "full"):
             raise InvalidParameterError(
                 f"pair_lists must be 'auto', 'half' or 'full', got {self.pair_lists!r}"
@@ -233,6 +241,7 @@ class PBFSolver:
         self._poses_pending = False
         self.time = 0.0
         self.steps = 0
+        self._capacity_warned = False
 
     # ------------------------------------------------------------------ scene building
 
@@ -459,8 +468,9 @@ class PBFSolver:
         self.world_col_start = wp.array(wstart, dtype=wp.int32, device=dev)
         self.world_col_end = wp.array(wend, dtype=wp.int32, device=dev)
         nb = max(self.num_body_slots, 1)
-        self.body_force = wp.zeros(nb, dtype=wp.vec3, device=dev)
-        self.body_torque = wp.zeros(nb, dtype=wp.vec3, device=dev)
+        # reactions summed in integer units of K.WRENCH_UNIT (order-independent sums)
+        self.body_force = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
+        self.body_torque = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
         # spatial hash: buckets = next power of two ≥ 2n; sort buffers need 2n entries
         buckets = 1 << max(10, math.ceil(math.log2(max(2 * n, 1))))
         self.bucket_mask = buckets - 1
@@ -576,6 +586,8 @@ class PBFSolver:
             self._upload_poses()
         if n > 0 and cfg.reorder_every > 0 and self.steps % cfg.reorder_every == 0:
             self._reorder()
+        if n > 0 and self.steps % OVERFLOW_CHECK_EVERY == 1:
+            self._check_list_capacity()
         self.body_force.zero_()
         self.body_torque.zero_()
         self.push.zero_()
@@ -740,6 +752,7 @@ class PBFSolver:
                 P["vorticity_confinement"],
                 cfg.viscosity_rate,
                 cfg.dt,
+                cfg.h,
                 self.vsum,
                 self.eta,
                 self.dv_sum,
@@ -751,6 +764,21 @@ class PBFSolver:
         # next step's start-of-step collider poses are this step's end poses
         wp.copy(self.col_pose_prev, self.col_pose)
         self._advance_clock()
+
+    def _check_list_capacity(self) -> None:
+        """Warn (once per solver) when a neighbour list filled up: the pairs beyond
+        ``max_neighbours`` were dropped, so that particle's density is underestimated."""
+        if self._capacity_warned:
+            return
+        fullest = int(self.nbr_count.numpy().max())
+        if fullest >= self.config.max_neighbours:
+            self._capacity_warned = True
+            warnings.warn(
+                f"a neighbour list reached max_neighbours={self.config.max_neighbours} at step "
+                f"{self.steps}; pairs beyond it are dropped (raise SolverConfig.max_neighbours)",
+                RuntimeWarning,
+                stacklevel=4,
+            )
 
     def _build_neighbours(self) -> None:
         """Hash particles by (world, cell), sort the buckets, and list neighbours within h."""
@@ -877,9 +905,10 @@ class PBFSolver:
         if self._dirty:
             z = np.zeros((self.num_body_slots, 3))
             return z, z.copy()
-        f = self.body_force.numpy()[: self.num_body_slots].copy()
-        t = self.body_torque.numpy()[: self.num_body_slots].copy()
-        return f.astype(float), t.astype(float)
+        unit = float(K.WRENCH_UNIT)
+        f = self.body_force.numpy()[: self.num_body_slots] * unit
+        t = self.body_torque.numpy()[: self.num_body_slots] * unit
+        return f, t
 
     def collider_sdf(self, collider: int, local_points: np.ndarray) -> np.ndarray:
         """The solver's own signed distance (m) and outward normal of a collider, (n, 4).
