@@ -365,3 +365,26 @@ def test_bounding_spheres_skip_only_colliders_out_of_reach() -> None:
         return s.positions()
 
     np.testing.assert_array_equal(run(True), run(False))
+
+
+def test_per_step_fractions_keep_their_rate_per_second() -> None:
+    """XSPH viscosity, particle friction and adhesion are fractions per calibration step;
+    at another dt they are rescaled so that two half-length steps relax as much as one."""
+    import warp as wp
+
+    from pourbench.fluids.kernels import per_step
+
+    @wp.kernel
+    def remaining(f: wp.array(dtype=float), ratio: float, out: wp.array(dtype=float)):
+        i = wp.tid()
+        out[i] = 1.0 - per_step(f[i], ratio)
+
+    fractions = wp.array([0.0, 0.0099, 0.3, 0.87, 1.0], dtype=float)
+    left = {}
+    for ratio in (0.5, 1.0, 2.0):
+        out = wp.zeros(5, dtype=float)
+        wp.launch(remaining, 5, inputs=[fractions, ratio], outputs=[out])
+        left[ratio] = out.numpy()
+    np.testing.assert_allclose(left[1.0], 1.0 - fractions.numpy(), atol=1e-7)
+    np.testing.assert_allclose(left[0.5] ** 2, left[1.0], atol=1e-6)
+    np.testing.assert_allclose(left[1.0] ** 2, left[2.0], atol=1e-6)

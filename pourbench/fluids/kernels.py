@@ -80,6 +80,13 @@ def spiky_grad(r: wp.vec3, dist: float, h: float, coef: float) -> wp.vec3:
 
 
 @wp.func
+def per_step(fraction: float, step_ratio: float) -> float:
+    """A per-step fraction calibrated at ``SolverConfig.calibration_dt``, for a step
+    ``step_ratio`` times as long: 1 − (1 − f)^ratio, the same relaxation per second."""
+    return 1.0 - wp.pow(wp.max(1.0 - fraction, 0.0), step_ratio)
+
+
+@wp.func
 def cohesion_spline(r: float, h: float) -> float:
     """Akinci et al. (2013) cohesion spline, normalised to a peak of 1 at r = h/2."""
     if r >= h or r <= 0.0:
@@ -493,6 +500,7 @@ def pair_kernels(half: bool) -> PairKernels:
         st_accel: float,
         coh_norm: float,
         curv_norm: float,
+        step_ratio: float,
         vsum: wp.array(dtype=wp.vec4),
         eta: wp.array(dtype=wp.vec3),
         dv_sum: wp.array(dtype=wp.vec3),
@@ -512,7 +520,7 @@ def pair_kernels(half: bool) -> PairKernels:
         vort_on = vorticity[w] > 0.0
         kc = cohesion[w] * coh_accel * dt / coh_norm
         ks = surface_tension[w] * st_accel * dt / curv_norm
-        kf = wp.min(particle_friction[w] * 0.1, 1.0)
+        kf = per_step(wp.min(particle_friction[w] * 0.1, 1.0), step_ratio)
         xi = x[i]
         vi = v[i]
         ni = normal[i]
@@ -821,6 +829,7 @@ def collide(
     adhesion_range: float,
     adhesion_gain: float,
     dt: float,
+    step_ratio: float,
     push: wp.array(dtype=float),
     contacts: wp.array(dtype=wp.int32),
     body_force: wp.array2d(dtype=wp.int64),
@@ -898,7 +907,7 @@ def collide(
             # adhesion: pull a particle in the contact band back toward the surface
             if pen <= 0.0 and adhesion[w] > 0.0:
                 gap = -pen
-                q = q - n * gap * wp.min(adhesion[w] * adhesion_gain, 1.0)
+                q = q - n * gap * per_step(wp.min(adhesion[w] * adhesion_gain, 1.0), step_ratio)
         if touched == 1:  # untouched particles skip the frame round trip (and its rounding)
             new_p = wp.transform_point(tf, q)
             add_reaction(col_body[c], new_p - pi, new_p, col_com[c], m, dt, body_force, body_torque)
@@ -936,6 +945,7 @@ def apply_filters(
     visc_rate: float,
     dt: float,
     h: float,
+    step_ratio: float,
     vsum: wp.array(dtype=wp.vec4),
     eta: wp.array(dtype=wp.vec3),
     dv_sum: wp.array(dtype=wp.vec3),
@@ -951,10 +961,10 @@ def apply_filters(
     dv = dv_sum[i]
     a = vsum[i]
     if a[3] > 0.0:
-        # XSPH: relax toward the kernel-weighted neighbour mean by a = ν / (1 + ν) per step
-        # (FleX's coefficient; the saturating form keeps ν ≫ 1 stable)
+        # XSPH: relax toward the kernel-weighted neighbour mean by κν / (1 + κν) per
+        # calibration step (FleX's coefficient; the saturating form keeps ν ≫ 1 stable)
         kv = visc_rate * viscosity[w]
-        dv += (wp.vec3(a[0], a[1], a[2]) / a[3] - vi) * (kv / (1.0 + kv))
+        dv += (wp.vec3(a[0], a[1], a[2]) / a[3] - vi) * per_step(kv / (1.0 + kv), step_ratio)
     e = eta[i]
     if vorticity[w] > 0.0:
         # confinement force along N × ω, N = η / |η|; where |η| is below 1 % of |ω|/h (the

@@ -14,8 +14,9 @@ surface tension and particle friction.
 
 How FleX's dimensionless coefficients become rates here (documented, the same for all
 liquids): viscosity ν relaxes each particle's velocity toward its neighbours' kernel mean
-by ``a = κν / (1 + κν)`` per step with κ = ``SolverConfig.viscosity_rate``; cohesion and surface
-tension are accelerations ``coefficient × cohesion_accel`` (Akinci et al. 2013 forms);
+by ``a = κν / (1 + κν)`` per step of ``SolverConfig.calibration_dt`` (rescaled to other steps
+so that the relaxation per second is the same) with κ = ``SolverConfig.viscosity_rate``;
+cohesion and surface tension are accelerations ``coefficient × cohesion_accel`` (Akinci et al. 2013 forms);
 adhesion pulls particles within ``adhesion_range`` of a surface back onto it and adds grip
 to the wall friction; damping is a drag rate (1/s); dissipation damps velocity per shape
 contact (1/s per contact). FleX's ``buoyancy`` scales gravity for gases in FleX; it is kept in
@@ -73,9 +74,13 @@ class SolverConfig:
         sor: over/under-relaxation factor applied to each Jacobi position correction.
         reorder_every: steps between spatial re-sorts of the particle arrays (0: never).
             Particle order inside a world therefore changes over time.
-        viscosity_rate: κ of the XSPH mapping (dimensionless, per step per unit FleX
-            viscosity): each step relaxes a velocity toward its neighbours' kernel mean by
-            κν / (1 + κν).
+        viscosity_rate: κ of the XSPH mapping (dimensionless, per unit FleX viscosity): each
+            step of ``calibration_dt`` relaxes a velocity toward its neighbours' kernel mean by
+            a = κν / (1 + κν); other steps use 1 − (1 − a)^(dt / calibration_dt), the same
+            relaxation per second.
+        calibration_dt: the step at which the per-step fractions (XSPH viscosity, particle
+            friction, adhesion) were calibrated against the validation experiments; they are
+            rescaled to other steps so that a liquid behaves the same at any dt.
         cohesion_accel, surface_tension_accel: acceleration per unit coefficient, m/s².
         adhesion_gain: fraction of the gap closed per step per unit FleX adhesion.
         max_speed: speed above which a world is flagged as diverged, m/s.
@@ -96,6 +101,7 @@ class SolverConfig:
     sor: float = 1.0
     reorder_every: int = 16
     viscosity_rate: float = 1.0
+    calibration_dt: float = 1.0 / 240.0
     cohesion_accel: float = 100.0
     surface_tension_accel: float = 100.0
     adhesion_gain: float = 10.0
@@ -104,7 +110,7 @@ class SolverConfig:
     device: str = "cpu"
 
     def __post_init__(self) -> None:
-        for name in ("spacing", "dt", "smoothing", "max_speed"):
+        for name in ("spacing", "dt", "smoothing", "max_speed", "calibration_dt"):
             check_finite(name, getattr(self, name), minimum=1e-9)
         for name in ("relaxation", "scorr_k", "scorr_n", "scorr_dq", "viscosity_rate"):
             check_finite(name, getattr(self, name), minimum=0.0)
@@ -692,6 +698,7 @@ class PBFSolver:
                 0.5 * cfg.spacing,
                 cfg.adhesion_gain,
                 cfg.dt,
+                cfg.dt / cfg.calibration_dt,
             ],
             [self.push, self.contacts, self.body_force, self.body_torque],
         )
@@ -740,6 +747,7 @@ class PBFSolver:
                 cfg.surface_tension_accel,
                 self.coh_norm,
                 self.curv_norm,
+                cfg.dt / cfg.calibration_dt,
             ],
             [self.vsum, self.eta, self.dv_sum],
         )
@@ -753,6 +761,7 @@ class PBFSolver:
                 cfg.viscosity_rate,
                 cfg.dt,
                 cfg.h,
+                cfg.dt / cfg.calibration_dt,
                 self.vsum,
                 self.eta,
                 self.dv_sum,
