@@ -16,7 +16,8 @@ How FleX's dimensionless coefficients become rates here (documented, the same fo
 liquids): viscosity ν relaxes each particle's velocity toward its neighbours' kernel mean
 by ``a = κν / (1 + κν)`` per step of ``SolverConfig.calibration_dt`` (rescaled to other steps
 so that the relaxation per second is the same) with κ = ``SolverConfig.viscosity_rate``;
-cohesion and surface tension are accelerations ``coefficient × cohesion_accel`` (Akinci et al. 2013 forms);
+cohesion and surface tension are accelerations ``coefficient × cohesion_accel`` (Akinci
+et al. 2013 forms); particle friction and adhesion are likewise fractions per calibration step;
 adhesion pulls particles within ``adhesion_range`` of a surface back onto it and adds grip
 to the wall friction; damping is a drag rate (1/s); dissipation damps velocity per shape
 contact (1/s per contact). FleX's ``buoyancy`` scales gravity for gases in FleX; it is kept in
