@@ -360,31 +360,32 @@ def test_bounding_spheres_skip_only_colliders_out_of_reach() -> None:
         s.fill(0, tank, 300.0, "water")
         s.step(1)
         if not skip:
-            s.col_bound.fill_(1.0e30)
+            s.cols.bound.fill_(1.0e30)
         s.step(30)
         return s.positions()
 
     np.testing.assert_array_equal(run(True), run(False))
 
 
-def test_per_step_fractions_keep_their_rate_per_second() -> None:
-    """XSPH viscosity, particle friction and adhesion are fractions per calibration step;
-    at another dt they are rescaled so that two half-length steps relax as much as one."""
-    import warp as wp
-
-    from pourbench.fluids.kernels import per_step
-
-    @wp.kernel
-    def remaining(f: wp.array(dtype=float), ratio: float, out: wp.array(dtype=float)):
-        i = wp.tid()
-        out[i] = 1.0 - per_step(f[i], ratio)
-
-    fractions = wp.array([0.0, 0.0099, 0.3, 0.87, 1.0], dtype=float)
+def test_step_fractions_keep_their_rate_per_second() -> None:
+    """XSPH viscosity, particle friction and adhesion act as fractions per step, calibrated
+    at ``calibration_dt``; at other steps they are rescaled so that two half-length steps
+    relax as much as one, and at ``calibration_dt`` they are the calibrated values."""
     left = {}
-    for ratio in (0.5, 1.0, 2.0):
-        out = wp.zeros(5, dtype=float)
-        wp.launch(remaining, 5, inputs=[fractions, ratio], outputs=[out])
-        left[ratio] = out.numpy()
-    np.testing.assert_allclose(left[1.0], 1.0 - fractions.numpy(), atol=1e-7)
-    np.testing.assert_allclose(left[0.5] ** 2, left[1.0], atol=1e-6)
-    np.testing.assert_allclose(left[1.0] ** 2, left[2.0], atol=1e-6)
+    for dt in (1 / 480, 1 / 240, 1 / 120):
+        s = PBFSolver(2, SolverConfig(dt=dt))
+        s.set_liquid(0, "ink")
+        s.set_liquid(1, "honey")
+        left[dt] = {k: 1.0 - f for k, f in s.step_fractions().items()}
+    for k in left[1 / 240]:
+        np.testing.assert_allclose(left[1 / 480][k] ** 2, left[1 / 240][k], rtol=1e-12)
+        np.testing.assert_allclose(left[1 / 240][k] ** 2, left[1 / 120][k], rtol=1e-12)
+    ink, honey = liquid_profile("ink"), liquid_profile("honey")
+    kept = left[1 / 240]  # the share that each fraction leaves
+    np.testing.assert_allclose(
+        kept["viscosity_frac"], 1.0 / (1.0 + np.array([ink.viscosity, honey.viscosity]))
+    )
+    np.testing.assert_allclose(
+        kept["friction_frac"],
+        1.0 - 0.1 * np.array([ink.particle_friction, honey.particle_friction]),
+    )

@@ -80,13 +80,6 @@ def spiky_grad(r: wp.vec3, dist: float, h: float, coef: float) -> wp.vec3:
 
 
 @wp.func
-def per_step(fraction: float, step_ratio: float) -> float:
-    """A per-step fraction calibrated at ``SolverConfig.calibration_dt``, for a step
-    ``step_ratio`` times as long: 1 − (1 − f)^ratio, the same relaxation per second."""
-    return 1.0 - wp.pow(wp.max(1.0 - fraction, 0.0), step_ratio)
-
-
-@wp.func
 def cohesion_spline(r: float, h: float) -> float:
     """Akinci et al. (2013) cohesion spline, normalised to a peak of 1 at r = h/2."""
     if r >= h or r <= 0.0:
@@ -491,7 +484,7 @@ def pair_kernels(half: bool) -> PairKernels:
         vorticity: wp.array(dtype=float),
         cohesion: wp.array(dtype=float),
         surface_tension: wp.array(dtype=float),
-        particle_friction: wp.array(dtype=float),
+        friction_frac: wp.array(dtype=float),
         h: float,
         grad_c: float,
         spacing: float,
@@ -500,7 +493,6 @@ def pair_kernels(half: bool) -> PairKernels:
         st_accel: float,
         coh_norm: float,
         curv_norm: float,
-        step_ratio: float,
         vsum: wp.array(dtype=wp.vec4),
         eta: wp.array(dtype=wp.vec3),
         dv_sum: wp.array(dtype=wp.vec3),
@@ -520,7 +512,7 @@ def pair_kernels(half: bool) -> PairKernels:
         vort_on = vorticity[w] > 0.0
         kc = cohesion[w] * coh_accel * dt / coh_norm
         ks = surface_tension[w] * st_accel * dt / curv_norm
-        kf = per_step(wp.min(particle_friction[w] * 0.1, 1.0), step_ratio)
+        kf = friction_frac[w]
         xi = x[i]
         vi = v[i]
         ni = normal[i]
@@ -726,6 +718,33 @@ def collider_sdf(
 # --------------------------------------------------------------------------- collisions
 
 
+@wp.struct
+class Colliders:
+    """Every world's colliders, grouped by world (world w owns ``world_start[w]`` up to
+    ``world_end[w]``), and the liquid's reaction summed per body slot."""
+
+    world_start: wp.array(dtype=wp.int32)
+    world_end: wp.array(dtype=wp.int32)
+    kind: wp.array(dtype=wp.int32)
+    start: wp.array(dtype=wp.int32)  # first of its parameters in ``params``
+    count: wp.array(dtype=wp.int32)
+    mesh: wp.array(dtype=wp.uint64)
+    params: wp.array(dtype=float)
+    pose_prev: wp.array(dtype=wp.transform)  # at the start of the step
+    pose: wp.array(dtype=wp.transform)  # at its end
+    body: wp.array(dtype=wp.int32)  # reaction slot, or −1
+    com: wp.array(dtype=wp.vec3)  # the body's centre of mass, world frame
+    bound: wp.array(dtype=float)  # radius about the local origin that holds the shape
+    force: wp.array2d(dtype=wp.int64)  # per slot, in WRENCH_UNIT
+    torque: wp.array2d(dtype=wp.int64)
+
+
+@wp.func
+def sdf_of(cols: Colliders, c: int, q: wp.vec3) -> wp.vec4:
+    """(signed distance, outward normal) of collider ``c`` at its local point ``q``."""
+    return collider_sdf(cols.kind[c], cols.params, cols.start[c], cols.count[c], cols.mesh[c], q)
+
+
 WRENCH_UNIT = wp.constant(1.0e-9)
 """Body reactions are summed as integers of this many N (and N·m): integer sums do not
 depend on the order in which threads add, so coupled runs are reproducible on CUDA too."""
@@ -738,45 +757,25 @@ def add_fixed(total: wp.array2d(dtype=wp.int64), body: int, value: wp.vec3):
 
 
 @wp.func
-def add_reaction(
-    body: int,
-    corr: wp.vec3,
-    point: wp.vec3,
-    com: wp.vec3,
-    m: float,
-    dt: float,
-    body_force: wp.array2d(dtype=wp.int64),
-    body_torque: wp.array2d(dtype=wp.int64),
-):
-    """Sum the reaction of a collision correction ``corr`` (m) on a body: −m Δx / dt², with
-    its torque about the body's centre of mass, in units of ``WRENCH_UNIT``. Bodies with slot
-    −1 take no reaction."""
+def add_reaction(cols: Colliders, c: int, corr: wp.vec3, point: wp.vec3, m: float, dt: float):
+    """Sum the reaction of collider ``c``'s correction ``corr`` (m) of a particle now at
+    ``point`` on its body: −m Δx / dt², with its torque about the body's centre of mass, in
+    units of ``WRENCH_UNIT``. Bodies with slot −1 take no reaction."""
+    body = cols.body[c]
     if body >= 0:
         f = corr * (-m / (dt * dt))
-        add_fixed(body_force, body, f)
-        add_fixed(body_torque, body, wp.cross(point - com, f))
+        add_fixed(cols.force, body, f)
+        add_fixed(cols.torque, body, wp.cross(point - cols.com[c], f))
 
 
 @wp.kernel
 def project_colliders(
     p: wp.array(dtype=wp.vec3),
     world: wp.array(dtype=wp.int32),
-    world_col_start: wp.array(dtype=wp.int32),
-    world_col_end: wp.array(dtype=wp.int32),
-    col_kind: wp.array(dtype=wp.int32),
-    col_start: wp.array(dtype=wp.int32),
-    col_count: wp.array(dtype=wp.int32),
-    col_mesh: wp.array(dtype=wp.uint64),
-    col_params: wp.array(dtype=float),
-    col_pose: wp.array(dtype=wp.transform),
-    col_body: wp.array(dtype=wp.int32),
-    col_com: wp.array(dtype=wp.vec3),
-    col_bound: wp.array(dtype=float),
+    cols: Colliders,
     mass: wp.array(dtype=float),
     radius: float,
     dt: float,
-    body_force: wp.array2d(dtype=wp.int64),
-    body_torque: wp.array2d(dtype=wp.int64),
     push: wp.array(dtype=float),
 ):
     """In-iteration projection out of colliders; reactions summed per body.
@@ -787,19 +786,17 @@ def project_colliders(
     i = wp.tid()
     w = world[i]
     pi = p[i]
-    for c in range(world_col_start[w], world_col_end[w]):
-        tf = col_pose[c]
+    for c in range(cols.world_start[w], cols.world_end[w]):
+        tf = cols.pose[c]
         q = wp.transform_point(wp.transform_inverse(tf), pi)
-        if wp.length(q) > col_bound[c] + radius:
+        if wp.length(q) > cols.bound[c] + radius:
             continue  # out of the collider's bounding sphere: no contact possible
-        s = collider_sdf(col_kind[c], col_params, col_start[c], col_count[c], col_mesh[c], q)
+        s = sdf_of(cols, c, q)
         if s[0] < radius:
             push[i] = push[i] + (radius - s[0])
             n = wp.vec3(s[1], s[2], s[3])
             new_p = wp.transform_point(tf, q + n * (radius - s[0]))
-            add_reaction(
-                col_body[c], new_p - pi, new_p, col_com[c], mass[w], dt, body_force, body_torque
-            )
+            add_reaction(cols, c, new_p - pi, new_p, mass[w], dt)
             pi = new_p
     p[i] = pi
 
@@ -809,31 +806,17 @@ def collide(
     p: wp.array(dtype=wp.vec3),
     x_prev: wp.array(dtype=wp.vec3),
     world: wp.array(dtype=wp.int32),
-    world_col_start: wp.array(dtype=wp.int32),
-    world_col_end: wp.array(dtype=wp.int32),
-    col_kind: wp.array(dtype=wp.int32),
-    col_start: wp.array(dtype=wp.int32),
-    col_count: wp.array(dtype=wp.int32),
-    col_mesh: wp.array(dtype=wp.uint64),
-    col_params: wp.array(dtype=float),
-    col_pose_prev: wp.array(dtype=wp.transform),
-    col_pose: wp.array(dtype=wp.transform),
-    col_body: wp.array(dtype=wp.int32),
-    col_com: wp.array(dtype=wp.vec3),
-    col_bound: wp.array(dtype=float),
+    cols: Colliders,
     mass: wp.array(dtype=float),
     static_friction: wp.array(dtype=float),
     dynamic_friction: wp.array(dtype=float),
     adhesion: wp.array(dtype=float),
     radius: float,
     adhesion_range: float,
-    adhesion_gain: float,
+    adhesion_frac: wp.array(dtype=float),
     dt: float,
-    step_ratio: float,
     push: wp.array(dtype=float),
     contacts: wp.array(dtype=wp.int32),
-    body_force: wp.array2d(dtype=wp.int64),
-    body_torque: wp.array2d(dtype=wp.int64),
 ):
     """Swept collision against every collider of the particle's world, with friction.
 
@@ -848,20 +831,19 @@ def collide(
     pi = p[i]
     m = mass[w]
     n_contacts = int(0)
-    for c in range(world_col_start[w], world_col_end[w]):
-        kind = col_kind[c]
-        tf = col_pose[c]
+    for c in range(cols.world_start[w], cols.world_end[w]):
+        tf = cols.pose[c]
         tf_inv = wp.transform_inverse(tf)
-        a = wp.transform_point(wp.transform_inverse(col_pose_prev[c]), x_prev[i])
+        a = wp.transform_point(wp.transform_inverse(cols.pose_prev[c]), x_prev[i])
         b = wp.transform_point(tf_inv, pi)
         seg = b - a
         # the swept motion stays out of the collider's bounding sphere (and adhesion band):
         # no contact possible, skip its SDF
         t_near = wp.clamp(-wp.dot(a, seg) / wp.max(wp.dot(seg, seg), 1.0e-20), 0.0, 1.0)
-        reach = col_bound[c] + radius + wp.max(adhesion_range, 2.0e-5)  # > trace tolerance
+        reach = cols.bound[c] + radius + wp.max(adhesion_range, 2.0e-5)  # > trace tolerance
         if wp.length(a + seg * t_near) > reach:
             continue
-        sa = collider_sdf(kind, col_params, col_start[c], col_count[c], col_mesh[c], a)
+        sa = sdf_of(cols, c, a)
         na = wp.vec3(sa[1], sa[2], sa[3])
         seg_len = wp.length(seg)
         q = b
@@ -871,7 +853,7 @@ def collide(
             t = float(0.0)
             for _it in range(24):
                 pt = a + seg * t
-                s = collider_sdf(kind, col_params, col_start[c], col_count[c], col_mesh[c], pt)
+                s = sdf_of(cols, c, pt)
                 gap = s[0] - radius
                 if gap <= 1.0e-5:
                     hit = 1
@@ -885,7 +867,7 @@ def collide(
         if hit == 1:
             rest = b - q  # keep only the sliding part of the remaining motion
             q = q + rest - na * wp.min(wp.dot(rest, na), 0.0)
-        s = collider_sdf(kind, col_params, col_start[c], col_count[c], col_mesh[c], q)
+        s = sdf_of(cols, c, q)
         if s[0] < radius + adhesion_range:
             touched = 1
             n = wp.vec3(s[1], s[2], s[3])
@@ -907,10 +889,10 @@ def collide(
             # adhesion: pull a particle in the contact band back toward the surface
             if pen <= 0.0 and adhesion[w] > 0.0:
                 gap = -pen
-                q = q - n * gap * per_step(wp.min(adhesion[w] * adhesion_gain, 1.0), step_ratio)
+                q = q - n * gap * adhesion_frac[w]
         if touched == 1:  # untouched particles skip the frame round trip (and its rounding)
             new_p = wp.transform_point(tf, q)
-            add_reaction(col_body[c], new_p - pi, new_p, col_com[c], m, dt, body_force, body_torque)
+            add_reaction(cols, c, new_p - pi, new_p, m, dt)
             pi = new_p
     p[i] = pi
     contacts[i] = n_contacts
@@ -940,12 +922,10 @@ def update_velocity(
 @wp.kernel
 def apply_filters(
     world: wp.array(dtype=wp.int32),
-    viscosity: wp.array(dtype=float),
+    viscosity_frac: wp.array(dtype=float),
     vorticity: wp.array(dtype=float),
-    visc_rate: float,
     dt: float,
     h: float,
-    step_ratio: float,
     vsum: wp.array(dtype=wp.vec4),
     eta: wp.array(dtype=wp.vec3),
     dv_sum: wp.array(dtype=wp.vec3),
@@ -961,10 +941,8 @@ def apply_filters(
     dv = dv_sum[i]
     a = vsum[i]
     if a[3] > 0.0:
-        # XSPH: relax toward the kernel-weighted neighbour mean by κν / (1 + κν) per
-        # calibration step (FleX's coefficient; the saturating form keeps ν ≫ 1 stable)
-        kv = visc_rate * viscosity[w]
-        dv += (wp.vec3(a[0], a[1], a[2]) / a[3] - vi) * per_step(kv / (1.0 + kv), step_ratio)
+        # XSPH: relax toward the kernel-weighted neighbour mean (PBFSolver.step_fractions)
+        dv += (wp.vec3(a[0], a[1], a[2]) / a[3] - vi) * viscosity_frac[w]
     e = eta[i]
     if vorticity[w] > 0.0:
         # confinement force along N × ω, N = η / |η|; where |η| is below 1 % of |ω|/h (the

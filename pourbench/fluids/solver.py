@@ -393,6 +393,23 @@ class PBFSolver:
             self._v = self.v.numpy().copy()
             self._dirty = True
 
+    def step_fractions(self) -> dict[str, np.ndarray]:
+        """Per world, the fractions applied once per step: XSPH viscosity's relaxation toward
+        the neighbours' mean (κν / (1 + κν)), particle friction's share of the tangential
+        relative velocity removed (0.1 per unit, at most 1), and adhesion's share of the gap
+        to a surface closed (``adhesion_gain`` per unit, at most 1). They are calibrated per
+        step of ``calibration_dt`` and rescaled to ``dt`` as 1 − (1 − f)^(dt / calibration_dt),
+        so the relaxation per second does not depend on the step."""
+        cfg = self.config
+        kv = cfg.viscosity_rate * np.array([liq.viscosity for liq in self.liquids])
+        base = {
+            "viscosity_frac": kv / (1.0 + kv),
+            "friction_frac": [min(0.1 * liq.particle_friction, 1.0) for liq in self.liquids],
+            "adhesion_frac": [min(cfg.adhesion_gain * liq.adhesion, 1.0) for liq in self.liquids],
+        }
+        ratio = cfg.dt / cfg.calibration_dt
+        return {k: 1.0 - (1.0 - np.asarray(f, float)) ** ratio for k, f in base.items()}
+
     def _upload(self) -> None:
         dev, cfg = self.device, self.config
         n = len(self._x)
@@ -424,19 +441,16 @@ class PBFSolver:
         attrs = (
             "damping",
             "dissipation",
-            "viscosity",
             "vorticity_confinement",
             "cohesion",
             "surface_tension",
-            "particle_friction",
             "static_friction",
             "dynamic_friction",
             "adhesion",
         )
-        self.params = {
-            a: wp.array([getattr(liq, a) for liq in self.liquids], dtype=float, device=dev)
-            for a in attrs
-        }
+        values = {a: [getattr(liq, a) for liq in self.liquids] for a in attrs}
+        values.update(self.step_fractions())
+        self.params = {a: wp.array(v, dtype=float, device=dev) for a, v in values.items()}
         # curl and colour-field normals feed only vorticity confinement and surface tension
         self._needs_curl_and_normals = any(
             liq.vorticity_confinement > 0 or liq.surface_tension > 0 for liq in self.liquids
@@ -455,29 +469,29 @@ class PBFSolver:
             counts.append(len(c.params))
             flat.append(c.params)
             off += len(c.params)
-        self.col_kind = wp.array([c.kind for c in cols], dtype=wp.int32, device=dev)
-        self.col_start = wp.array(starts, dtype=wp.int32, device=dev)
-        self.col_count = wp.array(counts, dtype=wp.int32, device=dev)
-        self.col_params = wp.array(
-            np.concatenate(flat) if flat else np.zeros(1, np.float32), dtype=float, device=dev
-        )
-        self.col_mesh = wp.array(
-            [c.mesh.id if c.mesh is not None else 0 for c in cols], dtype=wp.uint64, device=dev
-        )
-        self.col_body = wp.array([c.body for c in cols], dtype=wp.int32, device=dev)
-        self.col_bound = wp.array([_bound(c) for c in cols], dtype=float, device=dev)
         wstart = np.zeros(self.num_worlds, np.int32)
         wend = np.zeros(self.num_worlds, np.int32)
         for w in range(self.num_worlds):
             idx = [k for k, c in enumerate(cols) if c.world == w]
             wstart[w] = idx[0] if idx else 0
             wend[w] = idx[-1] + 1 if idx else 0
-        self.world_col_start = wp.array(wstart, dtype=wp.int32, device=dev)
-        self.world_col_end = wp.array(wend, dtype=wp.int32, device=dev)
         nb = max(self.num_body_slots, 1)
+        ints = lambda a: wp.array(a, dtype=wp.int32, device=dev)  # noqa: E731
+        self.cols = K.Colliders()
+        self.cols.world_start, self.cols.world_end = ints(wstart), ints(wend)
+        self.cols.kind = ints([c.kind for c in cols])
+        self.cols.start, self.cols.count = ints(starts), ints(counts)
+        self.cols.mesh = wp.array(
+            [c.mesh.id if c.mesh is not None else 0 for c in cols], dtype=wp.uint64, device=dev
+        )
+        self.cols.params = wp.array(
+            np.concatenate(flat) if flat else np.zeros(1, np.float32), dtype=float, device=dev
+        )
+        self.cols.body = ints([c.body for c in cols])
+        self.cols.bound = wp.array([_bound(c) for c in cols], dtype=float, device=dev)
         # reactions summed in integer units of K.WRENCH_UNIT (order-independent sums)
-        self.body_force = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
-        self.body_torque = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
+        self.cols.force = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
+        self.cols.torque = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
         # spatial hash: buckets = next power of two ≥ 2n; sort buffers need 2n entries
         buckets = 1 << max(10, math.ceil(math.log2(max(2 * n, 1))))
         self.bucket_mask = buckets - 1
@@ -492,20 +506,20 @@ class PBFSolver:
         self._dirty = False
 
     def _upload_poses(self, prev_too: bool = False) -> None:
-        """Copy host collider poses to the device; the current ones become the previous ones
-        (or, with ``prev_too``, both are set). Arrays are updated in place, so the recorded
-        kernel launches stay valid."""
+        """Copy host collider poses to the device as the end-of-step poses (the start-of-step
+        ones are the last step's end poses, copied when it finished; with ``prev_too`` both
+        are set). Arrays are updated in place, so the recorded kernel launches stay valid."""
         cols = [self.colliders[i] for i in self._col_order] or [Collider(0, 0, np.zeros(1))]
         poses = np.array([c.pose for c in cols], np.float32)
         coms = np.array([c.com for c in cols], np.float32)
+        c = self.cols
         if prev_too:
-            self.col_pose = wp.array(poses, dtype=wp.transform, device=self.device)
-            self.col_pose_prev = wp.clone(self.col_pose)
-            self.col_com = wp.array(coms, dtype=wp.vec3, device=self.device)
+            c.pose = wp.array(poses, dtype=wp.transform, device=self.device)
+            c.pose_prev = wp.clone(c.pose)
+            c.com = wp.array(coms, dtype=wp.vec3, device=self.device)
         else:
-            wp.copy(self.col_pose_prev, self.col_pose)
-            self.col_pose.assign(poses)
-            self.col_com.assign(coms)
+            c.pose.assign(poses)
+            c.com.assign(coms)
         self._poses_pending = False
 
     def set_collider_poses(
@@ -595,8 +609,8 @@ class PBFSolver:
             self._reorder()
         if n > 0 and self.steps % OVERFLOW_CHECK_EVERY == 1:
             self._check_list_capacity()
-        self.body_force.zero_()
-        self.body_torque.zero_()
+        self.cols.force.zero_()
+        self.cols.torque.zero_()
         self.push.zero_()
         if n == 0:
             self._advance_clock()
@@ -616,16 +630,6 @@ class PBFSolver:
             [self.x_prev, self.p],
         )
         self._build_neighbours()
-        col_args = [
-            self.world,
-            self.world_col_start,
-            self.world_col_end,
-            self.col_kind,
-            self.col_start,
-            self.col_count,
-            self.col_mesh,
-            self.col_params,
-        ]
         for _ in range(cfg.iterations):
             self._launch(
                 "density_sums",
@@ -666,18 +670,8 @@ class PBFSolver:
             self._launch(
                 "project_colliders",
                 K.project_colliders,
-                [
-                    self.p,
-                    *col_args,
-                    self.col_pose,
-                    self.col_body,
-                    self.col_com,
-                    self.col_bound,
-                    self.mass,
-                    cfg.radius,
-                    cfg.dt,
-                ],
-                [self.body_force, self.body_torque, self.push],
+                [self.p, self.world, self.cols, self.mass, cfg.radius, cfg.dt],
+                [self.push],
             )
         self._launch(
             "collide",
@@ -685,23 +679,18 @@ class PBFSolver:
             [
                 self.p,
                 self.x_prev,
-                *col_args,
-                self.col_pose_prev,
-                self.col_pose,
-                self.col_body,
-                self.col_com,
-                self.col_bound,
+                self.world,
+                self.cols,
                 self.mass,
                 P["static_friction"],
                 P["dynamic_friction"],
                 P["adhesion"],
                 cfg.radius,
                 0.5 * cfg.spacing,
-                cfg.adhesion_gain,
+                P["adhesion_frac"],
                 cfg.dt,
-                cfg.dt / cfg.calibration_dt,
             ],
-            [self.push, self.contacts, self.body_force, self.body_torque],
+            [self.push, self.contacts],
         )
         self._launch(
             "update_velocity",
@@ -739,7 +728,7 @@ class PBFSolver:
                 P["vorticity_confinement"],
                 P["cohesion"],
                 P["surface_tension"],
-                P["particle_friction"],
+                P["friction_frac"],
                 cfg.h,
                 self.grad_c,
                 cfg.spacing,
@@ -748,7 +737,6 @@ class PBFSolver:
                 cfg.surface_tension_accel,
                 self.coh_norm,
                 self.curv_norm,
-                cfg.dt / cfg.calibration_dt,
             ],
             [self.vsum, self.eta, self.dv_sum],
         )
@@ -757,12 +745,10 @@ class PBFSolver:
             K.apply_filters,
             [
                 self.world,
-                P["viscosity"],
+                P["viscosity_frac"],
                 P["vorticity_confinement"],
-                cfg.viscosity_rate,
                 cfg.dt,
                 cfg.h,
-                cfg.dt / cfg.calibration_dt,
                 self.vsum,
                 self.eta,
                 self.dv_sum,
@@ -772,7 +758,7 @@ class PBFSolver:
             [self.v],
         )
         # next step's start-of-step collider poses are this step's end poses
-        wp.copy(self.col_pose_prev, self.col_pose)
+        wp.copy(self.cols.pose_prev, self.cols.pose)
         self._advance_clock()
 
     def _check_list_capacity(self) -> None:
@@ -916,8 +902,8 @@ class PBFSolver:
             z = np.zeros((self.num_body_slots, 3))
             return z, z.copy()
         unit = float(K.WRENCH_UNIT)
-        f = self.body_force.numpy()[: self.num_body_slots] * unit
-        t = self.body_torque.numpy()[: self.num_body_slots] * unit
+        f = self.cols.force.numpy()[: self.num_body_slots] * unit
+        t = self.cols.torque.numpy()[: self.num_body_slots] * unit
         return f, t
 
     def collider_sdf(self, collider: int, local_points: np.ndarray) -> np.ndarray:
