@@ -105,6 +105,28 @@ def test_fill_rejects_more_than_the_container_holds() -> None:
     assert s.num_particles == 0  # nothing half-added
 
 
+@pytest.mark.parametrize(
+    "shape",
+    [cup(0.04, 0.08), cup(0.025, 0.06), cup(0.0612, 0.05), BoxShell(0.0512, 0.03, 0.04, 0.004)],
+    ids=["cup-4cm", "cup-2.5cm", "cup-6.1cm", "box"],
+)
+def test_fill_covers_the_cavity_at_the_liquids_number_density(shape) -> None:
+    """Each filled layer holds the cavity's volume in particles (one per spacing³), so a fill's
+    level is the level its volume reaches: 1 % at most missing below any full layer's top."""
+    spacing = 0.005
+    s = PBFSolver(1, SolverConfig(spacing=spacing))
+    c = s.add_container(0, shape)
+    n = s.fill(0, c, 0.9 * shape.interior_volume * 1e6, "water")  # 1 g/ml
+    z = s.positions()[:, 2]
+    layers = np.unique(np.round(z, 9))
+    assert np.allclose(np.diff(layers), spacing)
+    assert np.all(shape.sdf(s.positions()) >= 0.5 * spacing - 1e-6)  # clear of the wall
+    for top in layers[:-1]:  # the last layer may be partial
+        held = np.count_nonzero(z <= top + 1e-9) * spacing**3
+        assert held == pytest.approx(shape.volume_below(top + 0.5 * spacing), rel=0.01)
+    assert n == round(0.9 * shape.interior_volume / spacing**3)
+
+
 @pytest.mark.parametrize("bad", [float("nan"), -5.0, "lots"])
 def test_fill_rejects_bad_mass(bad) -> None:
     s = PBFSolver(1)

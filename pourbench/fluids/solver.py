@@ -351,7 +351,8 @@ class PBFSolver:
     ) -> int:
         """Place ``mass_g`` grams of liquid at rest density in a container collider.
 
-        Particles go on a cubic lattice of ``spacing`` inside the cavity, lowest first.
+        Particles fill the cavity from the bottom up at one per ``spacing``³ (see
+        :func:`container_lattice`), so the liquid starts at its level.
 
         Returns:
             The number of particles added.
@@ -969,27 +970,89 @@ def _surface_norms(cfg: SolverConfig, grad_c: float) -> tuple[float, float]:
     return float(coh), float(curv)
 
 
+_FILL_SLACK = 1e-7
+"""m: fill points may sit this much closer than a radius to a wall (float rounding)."""
+
+
 def container_lattice(shape: ContainerShape, spacing: float) -> np.ndarray:
-    """Cubic-lattice points (local frame) inside a container's cavity, lowest first."""
+    """Fill points (local frame) covering a container's cavity at one per ``spacing``³.
+
+    Layers ``spacing`` apart from the bottom up. In a revolved cavity each layer is a set of
+    concentric rings ``spacing`` apart, the outer one half a spacing inside the wall, each
+    holding round(2πρ / spacing) points: a layer then covers its disc at the liquid's number
+    density, so the filled level is the level its volume reaches (a square lattice cut by
+    a circle leaves a ragged empty rim — 12 % of a 4 cm cup's area at 5 mm — and the filled
+    column would collapse into it); alternate layers turn their rings by half a step. A box
+    cavity gets rows of points holding its area at the same density. Points are sorted
+    lowest layer first, and within a layer in a golden-ratio order, so that a partial top
+    layer is spread evenly.
+    """
     r = 0.5 * spacing
-    if isinstance(shape, RevolvedShell):
-        R = float(shape.points[:, 0].max())
-        g = np.arange(-R, R + 1e-9, spacing)
-        g = g - g.mean()
-    else:
-        R = max(shape.half_x, shape.half_y)
-        g = np.arange(-R, R + 1e-9, spacing)
-        g = g - g.mean()
-    z = np.arange(shape.bottom_z + r, shape.rim_height - r + 1e-9, spacing)
-    X, Y, Z = np.meshgrid(g, g, z, indexing="ij")
-    pts = np.stack([X.ravel(), Y.ravel(), Z.ravel()], 1)
-    if isinstance(shape, RevolvedShell):
-        inside = np.hypot(pts[:, 0], pts[:, 1]) <= shape.inner_radius(pts[:, 2]) - r
-    else:
-        inside = (np.abs(pts[:, 0]) <= shape.half_x - r) & (np.abs(pts[:, 1]) <= shape.half_y - r)
-    pts = pts[inside & (shape.sdf(pts) >= r)]
-    order = np.lexsort((pts[:, 1], pts[:, 0], pts[:, 2]))
-    return pts[order]
+    layers = []
+    for k, z in enumerate(np.arange(shape.bottom_z + r, shape.rim_height - r + 1e-9, spacing)):
+        if isinstance(shape, RevolvedShell):
+            xy = _disc_points(_ring_radius(shape, z, r), spacing, phase=0.5 * (k % 2))
+        else:
+            xy = _rect_points(shape.half_x, shape.half_y, spacing)
+        if len(xy) == 0:
+            continue
+        pts = np.column_stack([xy, np.full(len(xy), z)])
+        pts = pts[shape.sdf(pts) >= r - _FILL_SLACK]
+        spread = np.argsort((np.arange(len(pts)) * 0.6180339887498949) % 1.0, kind="stable")
+        layers.append(pts[spread])
+    return np.concatenate(layers) if layers else np.zeros((0, 3))
+
+
+def _rect_points(half_x: float, half_y: float, spacing: float) -> np.ndarray:
+    """Rows ``≈ spacing`` apart across a rectangle holding (area / spacing²) points in all:
+    each row gets its share rounded with the error carried to the next row, its points
+    spread evenly from half a spacing inside one wall to half a spacing inside the other."""
+    rows = max(1, round(2.0 * half_y / spacing))
+    per_row = 4.0 * half_x * half_y / spacing**2 / rows
+    pts = []
+    for y in _inset(half_y, spacing, rows):
+        m = max(1, round((len(pts) + 1) * per_row) - round(len(pts) * per_row))
+        pts.append(np.column_stack([_inset(half_x, spacing, m), np.full(m, y)]))
+    return np.concatenate(pts)
+
+
+def _inset(half: float, spacing: float, m: int) -> np.ndarray:
+    """``m`` evenly spaced coordinates in [−half + spacing/2, half − spacing/2]."""
+    if m == 1:
+        return np.zeros(1)
+    return np.linspace(-half + 0.5 * spacing, half - 0.5 * spacing, m)
+
+
+def _ring_radius(shape: RevolvedShell, z: float, clearance: float) -> float:
+    """Largest radius at height ``z`` whose point is ``clearance`` from the wall (bisection on
+    the SDF: on a sloped wall this is less than the cavity radius minus the clearance)."""
+    clearance -= _FILL_SLACK
+    lo, hi = 0.0, float(shape.inner_radius(z))
+    if shape.sdf(np.array([[0.0, 0.0, z]]))[0] < clearance:
+        return -1.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if shape.sdf(np.array([[mid, 0.0, z]]))[0] >= clearance:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def _disc_points(rc: float, spacing: float, phase: float) -> np.ndarray:
+    """Concentric rings of points ``spacing`` apart with centres within radius ``rc``; each
+    ring at radius ρ holds round(2πρ / spacing) points, the central remainder one point when
+    its area is at least half a cell. ``phase`` turns each ring by that fraction of a step."""
+    pts = []
+    rho = rc
+    while rho >= 0.5 * spacing:
+        m = max(1, round(2.0 * math.pi * rho / spacing))
+        a = (np.arange(m) + phase) * (2.0 * math.pi / m)
+        pts.append(np.column_stack([rho * np.cos(a), rho * np.sin(a)]))
+        rho -= spacing
+    if rho > -0.5 * spacing and math.pi * (rho + 0.5 * spacing) ** 2 >= 0.5 * spacing**2:
+        pts.append(np.zeros((1, 2)))
+    return np.concatenate(pts) if pts else np.zeros((0, 2))
 
 
 def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
