@@ -21,3 +21,17 @@ def test_quick_bench_prints_one_json_object(tmp_path) -> None:
     for key in ("particle_steps_per_s", "baseline_particle_steps_per_s", "ms_per_step"):
         assert math.isfinite(row[key]) and row[key] > 0
     assert (tmp_path / "fluids.md").exists() and (tmp_path / "fluids.json").exists()
+
+
+def test_bench_case_lists_keep_stdout_clean() -> None:
+    """Listing the cases probes for CUDA, which starts Warp; its greeting must not reach
+    stdout, or ``--json`` output is not one JSON document."""
+    code = (  # each suite alone, as `pourbench bench <suite>` runs it
+        "from pourbench.bench import {0}; assert {0}.cases(False)"
+    )
+    for suite in ("env", "fluids"):
+        out = subprocess.run(
+            [sys.executable, "-c", code.format(suite)],
+            capture_output=True, text=True, check=True, timeout=300,
+        )  # fmt: skip
+        assert out.stdout == "", suite

@@ -32,19 +32,12 @@ COLUMNS = (
 TARGET_SINGLE_CPU = 200.0
 
 
-def _cuda() -> bool:
-    try:
-        import warp as wp
-
-        return wp.get_cuda_device_count() > 0
-    except Exception:
-        return False
-
-
 def cases(quick: bool) -> list[tuple[str, str, int]]:
     """(front end, device, worlds) of every case."""
     worlds = (16,) if quick else (16, 64, 256)
-    devices = ["cpu"] + (["cuda"] if _cuda() and not quick else [])
+    from pourbench.fluids.solver import cuda_available
+
+    devices = ["cpu"] + (["cuda"] if not quick and cuda_available() else [])
     out = []
     for dev in devices:
         out.append(("single", dev, 1))

@@ -20,7 +20,7 @@ import warp as wp
 from pourbench.bench._report import markdown_table, write_report
 from pourbench.bench.fluids_baseline import BaselinePBF
 from pourbench.fluids.shapes import BoxShell
-from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.solver import PBFSolver, SolverConfig, cuda_available
 from pourbench.fluids.validation import (
     MARTIN_MOYCE,
     REST_FILLS_G,
@@ -104,7 +104,7 @@ def cases(quick: bool) -> list[tuple[str, int, int, str]]:
         return [("cpu", 16_000, 1, "auto")]
     out = [("cpu", 2_000, 1, "auto"), ("cpu", 16_000, 1, "auto"), ("cpu", 128_000, 1, "auto")]
     out += [("cpu", 16_000, 1, "full")]
-    if wp.get_cuda_device_count() > 0:
+    if cuda_available():
         out += [("cuda", n, 1, "auto") for n in (2_000, 16_000, 128_000)]
         out += [("cuda", 1_024_000, 64, "auto")]
     return out

@@ -153,6 +153,14 @@ class Collider:
     com: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
 
+def cuda_available() -> bool:
+    """Whether Warp sees a CUDA device (probing it here keeps Warp's greeting off stdout)."""
+    try:
+        return wp.get_cuda_device_count() > 0
+    except Exception:  # a broken driver install counts as no device
+        return False
+
+
 def shape_kind(shape: ContainerShape) -> tuple[int, np.ndarray]:
     """Kernel kind and flat parameters of a container shape."""
     if isinstance(shape, RevolvedShell):
