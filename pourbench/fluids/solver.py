@@ -26,6 +26,7 @@ the profiles for provenance but not applied, so that a container's weight is the
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -995,11 +996,19 @@ def container_lattice(shape: ContainerShape, spacing: float) -> np.ndarray:
     lowest layer first, and within a layer in a golden-ratio order, so that a partial top
     layer is spread evenly.
     """
+    return _cached_lattice(shape, float(spacing)).copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_lattice(shape: ContainerShape, spacing: float) -> np.ndarray:
     r = 0.5 * spacing
     layers = []
-    for k, z in enumerate(np.arange(shape.bottom_z + r, shape.rim_height - r + 1e-9, spacing)):
+    zs = np.arange(shape.bottom_z + r, shape.rim_height - r + 1e-9, spacing)
+    if isinstance(shape, RevolvedShell):
+        ring = _ring_radii(shape, zs, r)
+    for k, z in enumerate(zs):
         if isinstance(shape, RevolvedShell):
-            xy = _disc_points(_ring_radius(shape, z, r), spacing, phase=0.5 * (k % 2))
+            xy = _disc_points(float(ring[k]), spacing, phase=0.5 * (k % 2))
         else:
             xy = _rect_points(shape.half_x, shape.half_y, spacing)
         if len(xy) == 0:
@@ -1031,20 +1040,19 @@ def _inset(half: float, spacing: float, m: int) -> np.ndarray:
     return np.linspace(-half + 0.5 * spacing, half - 0.5 * spacing, m)
 
 
-def _ring_radius(shape: RevolvedShell, z: float, clearance: float) -> float:
-    """Largest radius at height ``z`` whose point is ``clearance`` from the wall (bisection on
-    the SDF: on a sloped wall this is less than the cavity radius minus the clearance)."""
+def _ring_radii(shape: RevolvedShell, zs: np.ndarray, clearance: float) -> np.ndarray:
+    """Largest radius at each height whose point is ``clearance`` from the wall (bisection on
+    the SDF: on a sloped wall this is less than the cavity radius minus the clearance);
+    −1 where even the axis is closer."""
     clearance -= _FILL_SLACK
-    lo, hi = 0.0, float(shape.inner_radius(z))
-    if shape.sdf(np.array([[0.0, 0.0, z]]))[0] < clearance:
-        return -1.0
+    lo, hi = np.zeros(len(zs)), shape.inner_radius(zs).astype(float)
+    zero = np.zeros(len(zs))
     for _ in range(40):
         mid = 0.5 * (lo + hi)
-        if shape.sdf(np.array([[mid, 0.0, z]]))[0] >= clearance:
-            lo = mid
-        else:
-            hi = mid
-    return lo
+        ok = shape.sdf(np.column_stack([mid, zero, zs])) >= clearance
+        lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
+    axis_ok = shape.sdf(np.column_stack([zero, zero, zs])) >= clearance
+    return np.where(axis_ok, lo, -1.0)
 
 
 def _disc_points(rc: float, spacing: float, phase: float) -> np.ndarray:
