@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import mujoco
+import numpy as np
 
 _COL = 'group="3" contype="0" conaffinity="0"'
 _VIS = 'type="sphere" size="0.02" contype="0" conaffinity="0" group="1"'
@@ -71,3 +72,16 @@ CAPSULES = ("col_1", "col_2", "col_3")
 def arm7_model(limited: bool = False) -> mujoco.MjModel:
     """Compiled :func:`arm7_xml`."""
     return mujoco.MjModel.from_xml_string(arm7_xml(limited))
+
+
+def central_differences(planner, q0, goal_pos, goal_quat, obstacles, U, h: float = 1e-6):
+    """Central-difference ∂f/∂U and ∂sd/∂U of ``planner.cost_and_constraints`` at ``U``."""
+    grad, dsd = [], []
+    for i in range(U.size):
+        e = np.zeros_like(U)
+        e[i] = h
+        fp, _, sp, _ = planner.cost_and_constraints(q0, goal_pos, goal_quat, obstacles, U + e)
+        fm, _, sm, _ = planner.cost_and_constraints(q0, goal_pos, goal_quat, obstacles, U - e)
+        grad.append((fp - fm) / (2 * h))
+        dsd.append((np.asarray(sp) - np.asarray(sm)) / (2 * h))
+    return np.array(grad), np.stack(dsd, axis=1)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from planner_arms import CAPSULES, JOINTS, arm7_model, arm7_xml
+from planner_arms import CAPSULES, JOINTS, arm7_model, arm7_xml, central_differences
 
 from pourbench.planners._threads import limit_blas_threads
 from pourbench.planners.baselines.chomp import plan_chomp
@@ -50,16 +50,7 @@ def test_real_robot_gradients_match_finite_differences(name):
     U = rng.normal(0, 0.3, planner.nU)
     goal = p0 + np.array([0.05, -0.2, 0.1])
     _, grad, _, dsd = planner.cost_and_constraints(q0, goal, x0, obs, U)
-    h = 1e-6
-    g_fd = np.zeros_like(grad)
-    d_fd = np.zeros_like(dsd)
-    for i in range(U.size):
-        e = np.zeros_like(U)
-        e[i] = h
-        fp, _, sp, _ = planner.cost_and_constraints(q0, goal, x0, obs, U + e)
-        fm, _, sm, _ = planner.cost_and_constraints(q0, goal, x0, obs, U - e)
-        g_fd[i] = (fp - fm) / (2 * h)
-        d_fd[:, i] = (sp - sm) / (2 * h)
+    g_fd, d_fd = central_differences(planner, q0, goal, x0, obs, U)
     assert np.linalg.norm(grad - g_fd) / np.linalg.norm(g_fd) < 1e-4
     moving = np.linalg.norm(d_fd, axis=1) > 1e-8
     rel = np.linalg.norm(dsd - d_fd, axis=1)[moving] / np.linalg.norm(d_fd, axis=1)[moving]

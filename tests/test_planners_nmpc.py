@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from planner_arms import CAPSULES, JOINTS, arm7_model
+from planner_arms import CAPSULES, JOINTS, arm7_model, central_differences
 
 from pourbench.planners._threads import limit_blas_threads
 from pourbench.planners.distance import Box, Capsule, Sphere, capsule_obstacle_distances
@@ -44,16 +44,7 @@ def test_gradients_match_finite_differences(kin, seed):
     goal_quat = rng.normal(size=4)
     obs = _obstacles()
     _, grad, sd, dsd = planner.cost_and_constraints(q0, goal_pos, goal_quat, obs, U)
-    h = 1e-6
-    grad_fd = np.zeros_like(grad)
-    dsd_fd = np.zeros_like(dsd)
-    for i in range(U.size):
-        e = np.zeros_like(U)
-        e[i] = h
-        fp, _, sp, _ = planner.cost_and_constraints(q0, goal_pos, goal_quat, obs, U + e)
-        fm, _, sm, _ = planner.cost_and_constraints(q0, goal_pos, goal_quat, obs, U - e)
-        grad_fd[i] = (fp - fm) / (2 * h)
-        dsd_fd[:, i] = (sp - sm) / (2 * h)
+    grad_fd, dsd_fd = central_differences(planner, q0, goal_pos, goal_quat, obs, U)
     assert np.linalg.norm(grad - grad_fd) / np.linalg.norm(grad_fd) < 1e-4
     assert sd.size == 8 * 3 * 3
     moving = np.linalg.norm(dsd_fd, axis=1) > 1e-8

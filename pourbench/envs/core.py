@@ -194,7 +194,6 @@ class PourBatch:
         self.tilt = np.zeros(self.n)
         self.max_tilt = np.zeros(self.n)
         self.worlds: list[WorldState | None] = [None] * self.n
-        self._capacity: dict[tuple[str, float], float] = {}
 
     # ----------------------------------------------------------------------------- setup
 
@@ -211,11 +210,9 @@ class PourBatch:
 
     def capacity_g(self, container: str, density: float) -> float:
         """Liquid (g) of ``density`` (kg/m³) the container holds at the solver's spacing."""
-        key = (container, self.solver_config.spacing)
-        if key not in self._capacity:
-            lattice = container_lattice(get_container(container).shape, key[1])
-            self._capacity[key] = len(lattice) * key[1] ** 3 * 1e3  # g per kg/m³
-        return self._capacity[key] * density
+        spacing = self.solver_config.spacing
+        n = len(container_lattice(get_container(container).shape, spacing))  # cached
+        return n * spacing**3 * 1e3 * density  # g
 
     def pouring_pose(self, world: int) -> tuple[np.ndarray, np.ndarray]:
         """Body position (m) and quaternion (w, x, y, z) of world's pouring container."""

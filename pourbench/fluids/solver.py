@@ -994,9 +994,9 @@ def container_lattice(shape: ContainerShape, spacing: float) -> np.ndarray:
     column would collapse into it); alternate layers turn their rings by half a step. A box
     cavity gets rows of points holding its area at the same density. Points are sorted
     lowest layer first, and within a layer in a golden-ratio order, so that a partial top
-    layer is spread evenly.
+    layer is spread evenly. The array is cached per (shape, spacing) and read-only.
     """
-    return _cached_lattice(shape, float(spacing)).copy()
+    return _cached_lattice(shape, float(spacing))
 
 
 @functools.lru_cache(maxsize=64)
@@ -1005,19 +1005,20 @@ def _cached_lattice(shape: ContainerShape, spacing: float) -> np.ndarray:
     layers = []
     zs = np.arange(shape.bottom_z + r, shape.rim_height - r + 1e-9, spacing)
     if isinstance(shape, RevolvedShell):
-        ring = _ring_radii(shape, zs, r)
-    for k, z in enumerate(zs):
-        if isinstance(shape, RevolvedShell):
-            xy = _disc_points(float(ring[k]), spacing, phase=0.5 * (k % 2))
-        else:
-            xy = _rect_points(shape.half_x, shape.half_y, spacing)
+        rings = _ring_radii(shape, zs, r)
+        layer_xy = [_disc_points(rings[k], spacing, 0.5 * (k % 2)) for k in range(len(zs))]
+    else:
+        layer_xy = [_rect_points(shape.half_x, shape.half_y, spacing)] * len(zs)
+    for z, xy in zip(zs, layer_xy, strict=True):
         if len(xy) == 0:
             continue
         pts = np.column_stack([xy, np.full(len(xy), z)])
         pts = pts[shape.sdf(pts) >= r - _FILL_SLACK]
         spread = np.argsort((np.arange(len(pts)) * 0.6180339887498949) % 1.0, kind="stable")
         layers.append(pts[spread])
-    return np.concatenate(layers) if layers else np.zeros((0, 3))
+    out = np.concatenate(layers) if layers else np.zeros((0, 3))
+    out.flags.writeable = False  # shared by every caller through the cache
+    return out
 
 
 def _rect_points(half_x: float, half_y: float, spacing: float) -> np.ndarray:
@@ -1027,8 +1028,8 @@ def _rect_points(half_x: float, half_y: float, spacing: float) -> np.ndarray:
     rows = max(1, round(2.0 * half_y / spacing))
     per_row = 4.0 * half_x * half_y / spacing**2 / rows
     pts = []
-    for y in _inset(half_y, spacing, rows):
-        m = max(1, round((len(pts) + 1) * per_row) - round(len(pts) * per_row))
+    for j, y in enumerate(_inset(half_y, spacing, rows)):
+        m = max(1, round((j + 1) * per_row) - round(j * per_row))
         pts.append(np.column_stack([_inset(half_x, spacing, m), np.full(m, y)]))
     return np.concatenate(pts)
 
