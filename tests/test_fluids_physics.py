@@ -26,13 +26,14 @@ DT = SolverConfig().dt
 def check_rest(device: str = "cpu") -> None:
     """190 / 200 / 210 g of water filled into a cup, sampled over 0.9–1.1 s: the density
     constraint holds in the bulk within 2 %, the mass per volume in a probe inside the liquid
-    is within 6 % of 1000 kg/m^3 (the settled packing is 3–6 % denser than the spacing's
-    lattice), and the liquid is still: 99 % of particles below 2 cm/s and the fastest one
+    is within 2 % of 1000 kg/m^3 (the rest sum of the constraint is that of the settled,
+    disordered packing, ``SolverConfig.rest_packing``; with the lattice's sum the probe read
+    1050), and the liquid is still: 99 % of particles below 2 cm/s and the fastest one
     below 3 cm/s at the median sample. The issue asks ≤ 2 cm/s for every particle: not met,
     a few particles keep a jitter of 2–5 cm/s."""
     r = rest_in_cup(device=device)
     assert r.density_error <= 0.02
-    assert r.bulk_density == pytest.approx(1000.0, rel=0.06)
+    assert r.bulk_density == pytest.approx(1000.0, rel=0.02), f"{r.bulk_density:.0f} kg/m^3"
     assert r.p99_speed <= 0.02, f"p99 speed {r.p99_speed:.4f} m/s"
     assert r.median_max_speed <= 0.03, f"median fastest particle {r.median_max_speed:.4f} m/s"
     # the fastest particle of all samples: jitter peaks reach 3.5–5 cm/s; a particle falling

@@ -66,6 +66,14 @@ class SolverConfig:
         iterations: Jacobi density iterations per step.
         smoothing: kernel radius h as a multiple of ``spacing``.
         relaxation: constraint-force mixing ε as a fraction of a full neighbourhood's Σ|∇C|².
+        rest_packing: the kernel sum of a particle in the settled liquid at number density
+            1/spacing³, as a fraction of the sum in a cubic lattice of ``spacing``; the rest
+            "density" of the constraint is the lattice sum times this. A settled liquid is
+            disordered, and a disordered packing reaches the lattice's kernel sum only when
+            it is 3–5 % denser: with the lattice's sum (1.0) settled water holds ~1050 kg/m³
+            in the bulk (mass per volume in :func:`pourbench.fluids.validation.rest_in_cup`'s
+            probe), with 0.97 it holds 1000 ± 15 kg/m³ (and its number density in 1 cm slabs
+            of a settled 250–300 g column is 1.001 / spacing³).
         scorr_k, scorr_n, scorr_dq: tensile-instability term s_corr = −k (W(r)/W(Δq))^n,
             with Δq = scorr_dq × h.
         max_neighbours: capacity of a particle's neighbour list.
@@ -95,6 +103,7 @@ class SolverConfig:
     iterations: int = 4
     smoothing: float = 2.0
     relaxation: float = 0.01
+    rest_packing: float = 0.97
     scorr_k: float = 0.1
     scorr_n: float = 4.0
     scorr_dq: float = 0.2
@@ -112,7 +121,7 @@ class SolverConfig:
     device: str = "cpu"
 
     def __post_init__(self) -> None:
-        for name in ("spacing", "dt", "smoothing", "max_speed", "calibration_dt"):
+        for name in ("spacing", "dt", "smoothing", "max_speed", "calibration_dt", "rest_packing"):
             check_finite(name, getattr(self, name), minimum=1e-9)
         for name in ("relaxation", "scorr_k", "scorr_n", "scorr_dq", "viscosity_rate"):
             check_finite(name, getattr(self, name), minimum=0.0)
@@ -195,10 +204,11 @@ def _bound(c: Collider) -> float:
 
 
 def _rest_sums(cfg: SolverConfig) -> tuple[float, float, float]:
-    """Rest sums of a particle in a full cubic lattice of ``spacing``.
+    """Rest sums of the density constraint, from a particle in a full cubic lattice of
+    ``spacing`` (the kernel sum scaled by ``rest_packing``).
 
     Returns:
-        w0: Σ (h² − r²)³ (the poly6 sum without its constant), m⁶.
+        w0: rest_packing × Σ (h − r)³ (the spiky sum without its constant), m³.
         grad_c: spiky-gradient constant −45/(π h⁶) divided by the rest density in kernel
             units, so ``spiky_grad(..., grad_c)`` is ∇C directly, 1/m⁴ · m.
         sum_grad2: Σ|∇C|² of the full neighbourhood, 1/m².
@@ -208,7 +218,7 @@ def _rest_sums(cfg: SolverConfig) -> tuple[float, float, float]:
     g = np.arange(-n, n + 1) * d
     r = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
     dist = np.linalg.norm(r, axis=1)
-    w0 = float(np.where(dist < h, (h - dist) ** 3, 0.0).sum())
+    w0 = cfg.rest_packing * float(np.where(dist < h, (h - dist) ** 3, 0.0).sum())
     grad_c = -3.0 / w0  # d/dr of (h − r)³, over the rest sum
     with np.errstate(invalid="ignore", divide="ignore"):
         coef = np.where((dist < h) & (dist > 0), grad_c * (h - dist) ** 2 / dist, 0.0)
