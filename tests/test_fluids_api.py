@@ -309,7 +309,9 @@ def test_full_and_half_pair_lists_agree(liquid: str) -> None:
         np.testing.assert_allclose(full.positions(), half.positions(), atol=1e-6)
         np.testing.assert_allclose(full.velocities(), half.velocities(), atol=1e-4)
         np.testing.assert_allclose(full.densities(), half.densities(), atol=1e-5)
-    np.testing.assert_array_equal(full.neighbour_counts(), half.neighbour_counts())
+    # a pair within float rounding of h can be listed in one mode and not the other
+    diff = np.abs(full.neighbour_counts() - half.neighbour_counts())
+    assert diff.max() <= 1 and np.count_nonzero(diff) <= 0.01 * len(diff)
     with pytest.raises(InvalidParameterError, match="pair_lists"):
         SolverConfig(pair_lists="quarter")
 
@@ -318,8 +320,9 @@ def test_full_and_half_pair_lists_agree(liquid: str) -> None:
 def test_vorticity_confinement_feeds_the_vortex(mode: str) -> None:
     """Weightless spinning ball: without confinement its angular momentum stays about
     constant; vorticity confinement (force along N × ω, N = ∇|ω| / |∇|ω||) adds rotation in
-    the vortex's own sense, so L_z grows (by 8 % in 40 steps; the 5 mm lattice is 3 % above
-    the settled liquid's rest sum, so the ball also expands, which weakens its vortex)."""
+    the vortex's own sense, so L_z grows. The ball is a 5 mm cubic lattice, so its rest sum
+    is the lattice's (``rest_packing=1``): with the settled liquid's sum the lattice is 3 %
+    over-dense and the expanding ball's vortex weakens, which is not what is tested here."""
     lz = {}
     for eps in (0.0, 0.2):
         liquid = dataclasses.replace(
@@ -329,14 +332,15 @@ def test_vorticity_confinement_feeds_the_vortex(mode: str) -> None:
             surface_tension=0.0,
             cohesion=0.0,
         )
-        s = PBFSolver(1, SolverConfig(gravity=(0.0, 0.0, 0.0), pair_lists=mode))
+        cfg = SolverConfig(gravity=(0.0, 0.0, 0.0), pair_lists=mode, rest_packing=1.0)
+        s = PBFSolver(1, cfg)
         s.set_liquid(0, liquid)
         s.add_particles(0, *_swirl())
         lz0 = _lz(s)
         s.step(40)
         lz[eps] = _lz(s) / lz0
     assert lz[0.0] == pytest.approx(1.0, abs=0.03)
-    assert lz[0.2] > lz[0.0] + 0.05
+    assert lz[0.2] > lz[0.0] + 0.08
 
 
 def test_full_neighbour_list_warns() -> None:

@@ -29,20 +29,32 @@ def check_rest(device: str = "cpu") -> None:
     is within 2 % of 1000 kg/m^3 (the rest sum of the constraint is that of the settled,
     disordered packing, ``SolverConfig.rest_packing``; with the lattice's sum the probe read
     1050), and the liquid is still: 99 % of particles below 2 cm/s and the fastest one
-    below 3 cm/s at the median sample. The issue asks ≤ 2 cm/s for every particle: not met,
-    a few particles keep a jitter of 2–5 cm/s."""
+    below 3 cm/s at the median sample. The issue asks ≤ 2 cm/s for every particle within
+    1 s: not met, the fill's settling (it compresses under its weight) leaves 2–4 cm/s on a
+    few free-surface particles at 1 s; :func:`test_settled_water_comes_to_rest` checks the
+    bound at 3 s."""
     r = rest_in_cup(device=device)
     assert r.density_error <= 0.02
     assert r.bulk_density == pytest.approx(1000.0, rel=0.02), f"{r.bulk_density:.0f} kg/m^3"
     assert r.p99_speed <= 0.02, f"p99 speed {r.p99_speed:.4f} m/s"
     assert r.median_max_speed <= 0.03, f"median fastest particle {r.median_max_speed:.4f} m/s"
-    # the fastest particle of all samples: jitter peaks reach 3.5–5 cm/s; a particle falling
+    # the fastest particle of all samples: peaks reach 3.5–4 cm/s; a particle falling
     # through the liquid (a broken constraint) would exceed this guard
     assert r.max_speed <= 0.06, f"fastest particle {r.max_speed:.4f} m/s"
 
 
 def test_rest_settles_to_rest_density() -> None:
     check_rest()
+
+
+def test_settled_water_comes_to_rest() -> None:
+    """The same fills two seconds later: every particle of every fill below 2 cm/s over
+    2.9–3.1 s (the issue's bound, met here at 3 s instead of 1 s). With sor = 1 a 2–4 cm/s
+    jitter never decays (fastest 3.9 cm/s after 5 s), so this fails on an overshooting
+    Jacobi solve."""
+    r = rest_in_cup(window=(2.9, 3.1))
+    assert r.density_error <= 0.02
+    assert r.max_speed <= 0.02, f"fastest particle {r.max_speed:.4f} m/s"
 
 
 @pytest.mark.parametrize("mass_g", [50.0, 200.0])

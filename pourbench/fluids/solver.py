@@ -81,7 +81,11 @@ class SolverConfig:
             half the work, the CPU default) or ``"full"`` (every particle lists all its
             neighbours and sums its own side: no atomics between threads, so CUDA runs are
             reproducible; the CUDA default); ``"auto"`` picks by device.
-        sor: over/under-relaxation factor applied to each Jacobi position correction.
+        sor: over/under-relaxation factor applied to each Jacobi position correction. Jacobi
+            overshoots: at 1.0 a settled liquid keeps a 2–4 cm/s jitter that never decays
+            (from one settled state, one step's p99 speed swings 0.8 / 3.4 cm/s between even
+            and odd iteration counts); at 0.7 settled water comes to rest (fastest particle
+            below 1 cm/s after 3 s) at the price of ~0.5 % more compression.
         reorder_every: steps between spatial re-sorts of the particle arrays (0: never).
             Particle order inside a world therefore changes over time.
         viscosity_rate: κ of the XSPH mapping (dimensionless, per unit FleX viscosity): each
@@ -109,7 +113,7 @@ class SolverConfig:
     scorr_dq: float = 0.2
     max_neighbours: int = 64
     pair_lists: str = "auto"
-    sor: float = 1.0
+    sor: float = 0.7
     reorder_every: int = 16
     viscosity_rate: float = 1.0
     calibration_dt: float = 1.0 / 240.0
