@@ -14,6 +14,7 @@ import pytest
 from pourbench.errors import CapacityError, InvalidParameterError, UnknownNameError
 from pourbench.fluids import liquid_profile
 from pourbench.fluids.coupling import MujocoCoupling
+from pourbench.fluids.meshes import check_closed_mesh, convex_hull
 from pourbench.fluids.shapes import BoxShell, bottle, bowl, cup
 from pourbench.fluids.solver import PBFSolver, SolverConfig
 
@@ -60,11 +61,12 @@ MESH_ASSET = (
 )
 
 
-@pytest.mark.parametrize("kind", sorted(GEOMS))
-def test_mujoco_geoms_hold_liquid_up(kind: str) -> None:
-    """A block of water dropped on a MuJoCo geom ends up outside it, resting on it."""
-    xml = f"""<mujoco><option timestep="{DT!r}"/>{MESH_ASSET if kind == "mesh" else ""}
-      <worldbody><geom name="floor" type="plane" size="1 1 0.1"/>{GEOMS[kind]}</worldbody>
+def _block_over_geoms(
+    asset: str, geom: str
+) -> tuple[mujoco.MjModel, mujoco.MjData, PBFSolver, MujocoCoupling]:
+    """A floor and ``geom`` in MuJoCo, coupled to a 6 × 6 × 4 block of water above them."""
+    xml = f"""<mujoco><option timestep="{DT!r}"/>{asset}
+      <worldbody><geom name="floor" type="plane" size="1 1 0.1"/>{geom}</worldbody>
       </mujoco>"""
     model = mujoco.MjModel.from_xml_string(xml)
     data = mujoco.MjData(model)
@@ -75,6 +77,15 @@ def test_mujoco_geoms_hold_liquid_up(kind: str) -> None:
     g = (np.arange(6) - 2.5) * d
     X, Y, Z = np.meshgrid(g, g, 0.07 + np.arange(4) * d, indexing="ij")
     solver.add_particles(0, np.stack([X.ravel(), Y.ravel(), Z.ravel()], 1))
+    return model, data, solver, coupling
+
+
+@pytest.mark.parametrize("kind", sorted(GEOMS))
+def test_mujoco_geoms_hold_liquid_up(kind: str) -> None:
+    """A block of water dropped on a MuJoCo geom ends up outside it, resting on it."""
+    model, data, solver, coupling = _block_over_geoms(
+        MESH_ASSET if kind == "mesh" else "", GEOMS[kind]
+    )
     coupling.step(round(0.4 / DT))
     x = solver.positions()
     gid = model.geom("g").id
@@ -95,6 +106,61 @@ def test_mujoco_geoms_hold_liquid_up(kind: str) -> None:
         < 0.02**2,
     }[kind]
     assert not inside.any()
+
+
+# an open-top tray, 6 × 6 × 3 cm: floor and four walls, no lid (its faces have no inside)
+TRAY_VERTS = np.array(
+    [[x, y, z] for z in (0.0, 0.03) for x, y in ((-1, -1), (1, -1), (1, 1), (-1, 1))], float
+) * [0.03, 0.03, 1.0]
+TRAY_FACES = np.array(
+    [[0, 2, 1], [0, 3, 2], [0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6],
+     [3, 0, 4], [3, 4, 7]]
+)  # fmt: skip
+
+
+def test_open_mesh_geom_collides_as_its_convex_hull() -> None:
+    """MuJoCo collides a mesh geom as its convex hull, and the fluid does too: water dropped
+    on an open tray mesh lands on the hull's top and runs off its sides to the floor, never
+    inside it and never faster than its fall (the open faces' own signed distance has no
+    inside: particles near the rim were thrown metres away at 11 m/s)."""
+    verts = " ".join(f"{v:g}" for v in TRAY_VERTS.ravel())
+    faces = " ".join(str(i) for i in TRAY_FACES.ravel())
+    model, _, solver, coupling = _block_over_geoms(
+        f'<asset><mesh name="m" vertex="{verts}" face="{faces}"/></asset>',
+        '<geom name="g" type="mesh" mesh="m" pos="0 0 0.01"/>',
+    )
+    assert model.mesh_facenum[0] == len(TRAY_FACES)  # MuJoCo keeps the open faces
+    fall = math.sqrt(2 * 9.81 * 0.09)  # from the block's top to the floor
+    for _ in range(round(0.4 / DT)):
+        coupling.step(1)
+        x = solver.positions()
+        assert np.linalg.norm(solver.velocities(), axis=1).max() < 1.2 * fall
+        in_hull = np.all(np.abs(x[:, :2]) < 0.03 - 1e-3, axis=1) & (x[:, 2] < 0.04 - 1e-3)
+        assert not (in_hull & (x[:, 2] > 0.01 + 1e-3)).any()
+    assert np.abs(x[:, :2]).max() < 0.3  # spread over the floor, nothing thrown away
+
+
+def test_mesh_collider_must_be_closed_and_wound_outward() -> None:
+    s = PBFSolver(1)
+    with pytest.raises(InvalidParameterError, match="not closed"):
+        s.add_collider(0, "mesh", [], mesh=(TRAY_VERTS, TRAY_FACES))
+    hull_v, hull_t = convex_hull(TRAY_VERTS)
+    check_closed_mesh(hull_v, hull_t)  # the hull is a closed, outward box
+    with pytest.raises(InvalidParameterError, match="wound inward"):
+        s.add_collider(0, "mesh", [], mesh=(hull_v, hull_t[:, ::-1]))
+    with pytest.raises(InvalidParameterError, match="index vertices"):
+        s.add_collider(0, "mesh", [], mesh=(hull_v, hull_t + 100))
+    with pytest.raises(InvalidParameterError, match="no convex hull"):
+        convex_hull(TRAY_VERTS * [1.0, 1.0, 0.0])  # flat
+    s.add_collider(0, "mesh", [], mesh=(hull_v, hull_t))
+    x = np.array([[0.0, 0.0, 0.015], [0.0, 0.0, 0.05], [0.029, 0.029, 0.029]])
+    sdf = s.collider_sdf(0, x)[:, 0]
+    assert sdf[0] == pytest.approx(-0.015, abs=1e-6) and sdf[1] == pytest.approx(0.02, abs=1e-6)
+    assert sdf[2] == pytest.approx(-0.001, abs=1e-6)  # inside, next to an edge and a corner
+    # the sign is the winding number's: the nearest face's normal misjudged 2 of these points
+    q = np.random.default_rng(0).uniform([-0.05, -0.05, -0.02], [0.05, 0.05, 0.05], (200_000, 3))
+    inside = np.all(np.abs(q[:, :2]) < 0.03, axis=1) & (q[:, 2] > 0.0) & (q[:, 2] < 0.03)
+    assert np.array_equal(s.collider_sdf(0, q)[:, 0] < 0.0, inside)
 
 
 def test_fill_rejects_more_than_the_container_holds() -> None:

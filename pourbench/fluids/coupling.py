@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from pourbench.errors import InvalidParameterError
+from pourbench.fluids.meshes import convex_hull
 from pourbench.fluids.shapes import ContainerShape
 from pourbench.fluids.solver import PBFSolver
 
@@ -130,11 +131,10 @@ class MujocoCoupling:
                 "mesh": [0.0],
             }[kind]
             mesh = None
-            if kind == "mesh":
+            if kind == "mesh":  # MuJoCo collides a mesh geom as its convex hull; so does the fluid
                 mid = m.geom_dataid[g]
                 va, vn = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
-                fa, fn = m.mesh_faceadr[mid], m.mesh_facenum[mid]
-                mesh = (m.mesh_vert[va : va + vn], m.mesh_face[fa : fa + fn])
+                mesh = convex_hull(m.mesh_vert[va : va + vn])
             body = int(m.geom_bodyid[g])
             for w in self._worlds(world):
                 c = self.solver.add_collider(w, kind, params, body=self._slot(w, body), mesh=mesh)

@@ -700,7 +700,9 @@ def collider_sdf(
             return wp.vec4(dr, ux, uy, 0.0)
         return wp.vec4(dz, 0.0, 0.0, wp.sign(q[2]))
     if kind == MESH:
-        query = wp.mesh_query_point_sign_normal(mesh, q, 1.0e6)
+        # winding-number sign: robust at edges and corners, where the nearest face's normal
+        # (wp.mesh_query_point_sign_normal) can put an outside point inside
+        query = wp.mesh_query_point_sign_winding_number(mesh, q, 1.0e6)
         if query.result:
             cp = wp.mesh_eval_position(mesh, query.face, query.u, query.v)
             r = q - cp

@@ -36,6 +36,7 @@ import warp as wp
 
 from pourbench.errors import CapacityError, InvalidParameterError, check_finite
 from pourbench.fluids import kernels as K
+from pourbench.fluids.meshes import check_closed_mesh
 from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell
 
@@ -300,7 +301,8 @@ class PBFSolver:
                 radius, half-length; mesh: unused; container shells: ``kernel_params()``).
             pose: (x, y, z, qx, qy, qz, qw), world frame.
             body: reaction-force slot from :meth:`new_body_slot`, or −1 for none.
-            mesh: (vertices (n, 3), triangles (m, 3)) for kind "mesh", local frame.
+            mesh: (vertices (n, 3), triangles (m, 3)) for kind "mesh", local frame: closed and
+                wound outward (:func:`pourbench.fluids.meshes.check_closed_mesh`).
         """
         self._check_world(world)
         if kind not in KIND_NAMES:
@@ -312,11 +314,13 @@ class PBFSolver:
             if mesh is None:
                 raise InvalidParameterError("a mesh collider needs (vertices, triangles)")
             verts, tris = mesh
+            check_closed_mesh(verts, tris)
             wmesh = wp.Mesh(
                 points=wp.array(np.asarray(verts, np.float32), dtype=wp.vec3, device=self.device),
                 indices=wp.array(
                     np.asarray(tris, np.int32).ravel(), dtype=wp.int32, device=self.device
                 ),
+                support_winding_number=True,
             )
         arr = np.asarray(params, np.float32).ravel()
         if not np.all(np.isfinite(arr)):
