@@ -18,8 +18,10 @@ def test_quick_bench_prints_one_json_object(tmp_path) -> None:
     (row,) = doc["rows"]  # --quick: the 16k CPU case only
     assert row["device"] == "cpu" and row["iterations"] == 4
     assert 15_000 <= row["particles"] <= 17_000
-    for key in ("particle_steps_per_s", "baseline_particle_steps_per_s", "ms_per_step"):
+    keys = ("particle_steps_per_s", "best_particle_steps_per_s", "baseline_particle_steps_per_s")
+    for key in (*keys, "ms_per_step"):
         assert math.isfinite(row[key]) and row[key] > 0
+    assert row["best_particle_steps_per_s"] >= row["particle_steps_per_s"]  # fastest ≥ median
     assert (tmp_path / "fluids.md").exists() and (tmp_path / "fluids.json").exists()
 
 
