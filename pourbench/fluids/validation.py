@@ -32,6 +32,9 @@ window of time."""
 
 REST_WINDOW_S = (0.9, 1.1)
 
+REST_LATE_WINDOW_S = (2.9, 3.1)
+"""The same fills two seconds later: a settled liquid must come to rest, not keep a jitter."""
+
 
 @dataclass(frozen=True)
 class RestResult:
