@@ -73,8 +73,8 @@ class SolverConfig:
             disordered, and a disordered packing reaches the lattice's kernel sum only when
             it is 3–5 % denser: with the lattice's sum (1.0) settled water holds ~1050 kg/m³
             in the bulk (mass per volume in :func:`pourbench.fluids.validation.rest_in_cup`'s
-            probe), with 0.97 it holds 1000 ± 15 kg/m³ (and its number density in 1 cm slabs
-            of a settled 250–300 g column is 1.001 / spacing³).
+            probe), with 0.97 it holds 995–1000 kg/m³ (number density in 1 cm slabs of a
+            settled 250–300 g column: 0.997 / spacing³ at the default ``sor``).
         scorr_k, scorr_n, scorr_dq: tensile-instability term s_corr = −k (W(r)/W(Δq))^n,
             with Δq = scorr_dq × h.
         max_neighbours: capacity of a particle's neighbour list.
