@@ -132,8 +132,7 @@ COLUMNS = [
 def validation() -> tuple[dict[str, Any], str]:
     """Run the physical validation experiments; their numbers and a markdown table."""
     print("fluids: physical validation (rest, weight, viscous pours, dam break)…", file=sys.stderr)
-    rest = rest_in_cup()
-    late = rest_in_cup(window=REST_LATE_WINDOW_S)
+    rest, late = rest_in_cup(windows=(REST_WINDOW_S, REST_LATE_WINDOW_S))
     fills = " / ".join(f"{m:g}" for m in REST_FILLS_G)
     t0, t1 = REST_WINDOW_S
     w50, w200 = scale_reading(50.0), scale_reading(200.0)

@@ -3,9 +3,10 @@
 No library ships PBF kernels with FleX's parameter semantics and per-world isolation, so they
 live here. Every kernel runs unchanged on ``device="cpu"`` and ``device="cuda"``.
 
-Conventions: ``h`` is the smoothing radius (2 × particle spacing), ``w0`` the kernel sum of a
-particle in a full cubic lattice (the rest "density" in kernel units), so the density
-constraint is ``C_i = Σ_j W_ij / w0 − 1``. Particles of different worlds never interact:
+Conventions: ``h`` is the smoothing radius (2 × particle spacing), ``w0`` the rest "density"
+in kernel units (a particle's kernel sum in a full cubic lattice times
+``SolverConfig.rest_packing``, the settled liquid's share of it), so the density constraint
+is ``C_i = Σ_j W_ij / w0 − 1``. Particles of different worlds never interact:
 the spatial hash includes the world, and candidates of other worlds are rejected.
 Per-world liquid parameters are arrays indexed by ``world[i]``.
 
@@ -438,13 +439,15 @@ def pair_kernels(half: bool) -> PairKernels:
         nbr_count: wp.array(dtype=wp.int32),
         h: float,
         grad_c: float,
+        curl: int,
         omega: wp.array(dtype=wp.vec3),
         normal: wp.array(dtype=wp.vec3),
     ):
         """Curl of velocity ω_i = Σ_j (v_j − v_i) × ∇_j W_ij = Σ_j ∇_i W_ij × (v_j − v_i)
-        (Macklin & Müller 2013, Eq. 15) and colour-field normal n_i = h Σ_j ∇_i W_ij / w0
-        (Akinci 2013), as pair sums (zero on entry; cleared by :func:`apply_filters`). A pair
-        adds the same curl term to both of its particles."""
+        (Macklin & Müller 2013, Eq. 15; only if ``curl``: it feeds vorticity confinement
+        alone) and colour-field normal n_i = h Σ_j ∇_i W_ij / w0 (Akinci 2013), as pair sums
+        (zero on entry; cleared by :func:`apply_filters`). A pair adds the same curl term to
+        both of its particles."""
         i = wp.tid()
         xi = x[i]
         vi = v[i]
@@ -457,12 +460,14 @@ def pair_kernels(half: bool) -> PairKernels:
             j = nbr[k]
             r = xi - x[j]
             g = spiky_grad(r, wp.length(r), h, grad_c)  # ∇_i W_ij
-            c = wp.cross(g, v[j] - vi)
-            om += c
             nn += g
             if wp.static(half):
-                wp.atomic_add(omega, j, c)
                 wp.atomic_sub(normal, j, g * h)
+            if curl != 0:
+                c = wp.cross(g, v[j] - vi)
+                om += c
+                if wp.static(half):
+                    wp.atomic_add(omega, j, c)
             k += 1
         if wp.static(half):
             wp.atomic_add(omega, i, om)

@@ -479,9 +479,10 @@ class PBFSolver:
         values = {a: [getattr(liq, a) for liq in self.liquids] for a in attrs}
         values.update(self.step_fractions())
         self.params = {a: wp.array(v, dtype=float, device=dev) for a, v in values.items()}
-        # curl and colour-field normals feed only vorticity confinement and surface tension
-        self._needs_curl_and_normals = any(
-            liq.vorticity_confinement > 0 or liq.surface_tension > 0 for liq in self.liquids
+        # curl feeds only vorticity confinement; colour-field normals only surface tension
+        self._needs_curl = any(liq.vorticity_confinement > 0 for liq in self.liquids)
+        self._needs_curl_and_normals = self._needs_curl or any(
+            liq.surface_tension > 0 for liq in self.liquids
         )
         self.mass = wp.array(
             [liq.density * cfg.spacing**3 for liq in self.liquids], dtype=float, device=dev
@@ -738,6 +739,7 @@ class PBFSolver:
                     self.nbr_count,
                     cfg.h,
                     self.grad_c,
+                    int(self._needs_curl),
                 ],
                 [self.omega, self.normal],
             )

@@ -38,7 +38,8 @@ REST_LATE_WINDOW_S = (2.9, 3.1)
 
 @dataclass(frozen=True)
 class RestResult:
-    """Water left in a cup (one world per fill of ``REST_FILLS_G``), sampled over a window."""
+    """Water left in a cup (one world per fill of ``REST_FILLS_G``), sampled over a window
+    (``solver``: the run, at the end of its last window)."""
 
     density_error: float  # largest mean |ρ/ρ0 − 1| over the bulk of a world at a sample
     max_speed: float  # m/s, fastest particle of any world at any sample
@@ -50,44 +51,52 @@ class RestResult:
 
 def rest_in_cup(
     masses_g: Sequence[float] = REST_FILLS_G,
-    window: tuple[float, float] = REST_WINDOW_S,
+    windows: Sequence[tuple[float, float]] = (REST_WINDOW_S, REST_LATE_WINDOW_S),
     device: str = "cpu",
     samples: int = 12,
-) -> RestResult:
-    """Fill a cup (radius 4 cm) with water at rest density and let it settle; sample speeds,
-    kernel density and a probe's mass per volume ``samples`` times over ``window`` (s)."""
+) -> tuple[RestResult, ...]:
+    """Fill a cup (radius 4 cm) with water at rest density and let it settle; in each of
+    ``windows`` (s, in time order, one run for all) sample speeds, kernel density and a
+    probe's mass per volume ``samples`` times. One result per window."""
     shape = cup(0.04, 0.08)
     s = PBFSolver(len(masses_g), SolverConfig(device=device))
     for w, mass in enumerate(masses_g):
         s.add_collider(w, "plane", [0.0])
         s.fill(w, s.add_container(w, shape), mass, "water")
-    s.step(round(window[0] / s.config.dt))
-    every = max(1, round((window[1] - window[0]) / s.config.dt / samples))
-    errors, maxima, speeds, bulk = [], [], [], []
-    for _ in range(samples):
-        s.step(every)
-        x, v = s.positions(), np.linalg.norm(s.velocities(), axis=1)
-        for w in range(len(masses_g)):
-            sl = s.world_slice(w)
-            xw = x[sl]
-            errors.append(s.density_error(w))
-            maxima.append(v[sl].max())
-            speeds.append(v[sl])
-            # mass per volume in a probe cylinder well inside the liquid (1 cm from the
-            # wall, the bottom and the surface): a kernel-free measure of the density
-            rho_xy = np.hypot(xw[:, 0], xw[:, 1])
-            lo, hi = shape.bottom_z + 0.01, np.quantile(xw[:, 2], 0.99) - 0.01
-            probe = (rho_xy < 0.03) & (xw[:, 2] > lo) & (xw[:, 2] < hi)
-            volume = math.pi * 0.03**2 * (hi - lo)
-            bulk.append(probe.sum() * s.particle_mass(w) / volume)
-    return RestResult(
-        float(max(errors)),
-        float(max(maxima)),
-        float(np.median(maxima)),
-        float(np.quantile(np.concatenate(speeds), 0.99)),
-        float(np.mean(bulk)),
-        s,
-    )
+    results = []
+    for t0, t1 in windows:
+        if t0 < s.time - 1e-9 or t1 <= t0:
+            raise ValueError(f"rest windows must be increasing and disjoint, got {windows}")
+        s.step(round((t0 - s.time) / s.config.dt))
+        every = max(1, round((t1 - t0) / s.config.dt / samples))
+        errors, maxima, speeds, bulk = [], [], [], []
+        for _ in range(samples):
+            s.step(every)
+            x, v = s.positions(), np.linalg.norm(s.velocities(), axis=1)
+            for w in range(len(masses_g)):
+                sl = s.world_slice(w)
+                xw = x[sl]
+                errors.append(s.density_error(w))
+                maxima.append(v[sl].max())
+                speeds.append(v[sl])
+                # mass per volume in a probe cylinder well inside the liquid (1 cm from the
+                # wall, the bottom and the surface): a kernel-free measure of the density
+                rho_xy = np.hypot(xw[:, 0], xw[:, 1])
+                lo, hi = shape.bottom_z + 0.01, np.quantile(xw[:, 2], 0.99) - 0.01
+                probe = (rho_xy < 0.03) & (xw[:, 2] > lo) & (xw[:, 2] < hi)
+                volume = math.pi * 0.03**2 * (hi - lo)
+                bulk.append(probe.sum() * s.particle_mass(w) / volume)
+        results.append(
+            RestResult(
+                float(max(errors)),
+                float(max(maxima)),
+                float(np.median(maxima)),
+                float(np.quantile(np.concatenate(speeds), 0.99)),
+                float(np.mean(bulk)),
+                s,
+            )
+        )
+    return tuple(results)
 
 
 def scale_reading(mass_g: float, seconds: float = 1.5, settle: float = 1.0) -> float:
