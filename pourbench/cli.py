@@ -1,8 +1,8 @@
 """The ``pourbench`` console script.
 
 Subcommands import their modules lazily so ``pourbench --help`` stays fast. Each benchmark
-suite is a module ``pourbench.bench.<suite>`` exposing ``add_arguments(parser)`` and
-``run(args) -> int``.
+suite is a module ``pourbench.bench.<suite>`` exposing ``run(args) -> int``; a suite with a
+CUDA path sets ``HAS_CUDA = True`` and reads ``args.device``.
 """
 
 from __future__ import annotations
@@ -23,9 +23,17 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     suites = BENCH_SUITES if args.suite == "all" else (args.suite,)
+    modules = [importlib.import_module(f"pourbench.bench.{suite}") for suite in suites]
+    if args.device == "cuda":
+        from pourbench.fluids.solver import cuda_available
+
+        if not cuda_available():
+            raise ValueError("--device cuda: Warp sees no CUDA device")
+        modules = [m for m in modules if getattr(m, "HAS_CUDA", False)]
+        if not modules:
+            raise ValueError(f"bench {args.suite} has no CUDA path; use --device cpu")
     rc = 0
-    for suite in suites:
-        module = importlib.import_module(f"pourbench.bench.{suite}")
+    for module in modules:
         rc |= module.run(args)
     return rc
 
@@ -93,6 +101,13 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--json", action="store_true", help="print one JSON object to stdout")
     bench.add_argument("--out", default="leaderboard", help="folder for the tables")
     bench.add_argument("--no-write", action="store_true", help="do not write leaderboard files")
+    bench.add_argument(
+        "--device",
+        default="auto",
+        choices=("auto", "cpu", "cuda"),
+        help="auto: the CPU, plus CUDA when present; cuda: the CUDA rows alone (and the fluid "
+        "checks on CUDA), written to leaderboard/<suite>_cuda.*",
+    )
     bench.set_defaults(func=_cmd_bench)
 
     ev = sub.add_parser("eval", help="pour with a policy on Pour-v0; print error, spill, success")

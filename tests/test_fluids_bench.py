@@ -7,6 +7,8 @@ import math
 import subprocess
 import sys
 
+import pytest
+
 
 def test_quick_bench_prints_one_json_object(tmp_path) -> None:
     out = subprocess.run(
@@ -37,3 +39,29 @@ def test_bench_case_lists_keep_stdout_clean() -> None:
             capture_output=True, text=True, check=True, timeout=300,
         )  # fmt: skip
         assert out.stdout == "", suite
+
+
+def test_device_choice_selects_rows_and_report() -> None:
+    from pourbench.bench import _report, env, fluids
+
+    assert {d for d, *_ in fluids.cases(False, "cpu")} == {"cpu"}
+    cuda_rows = fluids.cases(False, "cuda")  # listing needs no device
+    assert {d for d, *_ in cuda_rows} == {"cuda"}
+    assert max(n for _, n, *_ in cuda_rows) >= 1_000_000  # the 1M+ target row
+    assert {d for _, d, _ in env.cases(False, "cuda")} == {"cuda"}
+    assert _report.report_stem("fluids", "cuda") == "fluids_cuda"
+    assert _report.report_stem("fluids", "auto") == "fluids"
+    assert _report.accelerator([{"device": "cpu"}]) is None
+
+
+def test_cuda_bench_without_a_device_is_a_clear_error() -> None:
+    from pourbench.fluids.solver import cuda_available
+
+    if cuda_available():
+        pytest.skip("the error path exists only on machines without CUDA")
+    for suite in ("fluids", "planning"):
+        out = subprocess.run(
+            [sys.executable, "-m", "pourbench.cli", "bench", suite, "--device", "cuda"],
+            capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+        assert out.returncode != 0 and "no CUDA device" in out.stderr, suite

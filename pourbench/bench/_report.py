@@ -19,7 +19,11 @@ from typing import Any
 
 
 def git_sha() -> str:
-    """Short SHA of HEAD, with ``-dirty`` when the tree has uncommitted changes."""
+    """Short SHA of HEAD, with ``-dirty`` when the tree has uncommitted changes; in a copy of
+    the source without ``.git`` (a tree shipped to a GPU machine, say), ``$POURBENCH_GIT_SHA``
+    names the commit it was copied from."""
+    if not Path(".git").exists() and os.environ.get("POURBENCH_GIT_SHA"):
+        return os.environ["POURBENCH_GIT_SHA"] + " (exported tree)"
     try:
         sha = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
@@ -61,6 +65,31 @@ def provenance() -> dict[str, str]:
     }
 
 
+def devices(choice: str, quick: bool = False) -> list[str]:
+    """The devices a suite times for ``--device``: ``auto`` is the CPU plus CUDA when Warp sees
+    a device (not in a quick run), ``cpu`` / ``cuda`` that device alone."""
+    if choice in ("cpu", "cuda"):
+        return [choice]
+    from pourbench.fluids.solver import cuda_available
+
+    return ["cpu"] + (["cuda"] if not quick and cuda_available() else [])
+
+
+def report_stem(suite: str, choice: str) -> str:
+    """Leaderboard file stem: a CUDA-only run writes ``<suite>_cuda`` beside the CPU table."""
+    return f"{suite}_cuda" if choice == "cuda" else suite
+
+
+def accelerator(rows: Sequence[dict[str, Any]]) -> str | None:
+    """Name of the CUDA device, when any row ran on one."""
+    if not any(r.get("device") == "cuda" for r in rows):
+        return None
+    import warp as wp
+
+    dev = wp.get_device("cuda")
+    return f"{dev.name} (sm_{dev.arch}), Warp {wp.config.version}"
+
+
 def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
     """A GitHub markdown table of ``rows`` restricted to ``columns``."""
 
@@ -96,6 +125,9 @@ def write_report(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     prov = provenance()
+    gpu = accelerator(rows)
+    if gpu:
+        prov["accelerator"] = gpu
     doc = {"suite": suite, **prov, **(extra or {}), "rows": list(rows)}
     json_path = out / f"{suite}.json"
     json_path.write_text(json.dumps(doc, indent=2) + "\n")
@@ -105,6 +137,7 @@ def write_report(
         f"- command: `{prov['command']}`",
         f"- git SHA: `{prov['git_sha']}`",
         f"- machine: {prov['machine']}",
+        *([f"- accelerator: {gpu}"] if gpu else []),
         f"- date: {prov['date']}",
         "",
         body_md.strip(),

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from pourbench.bench._report import markdown_table, write_report
+from pourbench.bench._report import devices, markdown_table, report_stem, write_report
 
 COLUMNS = (
     "front_end",
@@ -30,16 +30,14 @@ COLUMNS = (
     "s_per_vector_step",
 )
 TARGET_SINGLE_CPU = 200.0
+HAS_CUDA = True
 
 
-def cases(quick: bool) -> list[tuple[str, str, int]]:
+def cases(quick: bool, device: str = "auto") -> list[tuple[str, str, int]]:
     """(front end, device, worlds) of every case."""
     worlds = (16,) if quick else (16, 64, 256)
-    from pourbench.fluids.solver import cuda_available
-
-    devices = ["cpu"] + (["cuda"] if not quick and cuda_available() else [])
     out = []
-    for dev in devices:
+    for dev in devices(device, quick):
         out.append(("single", dev, 1))
         out += [("vector", dev, n) for n in worlds]
     return out
@@ -84,7 +82,8 @@ def run_case(front_end: str, device: str, worlds: int, budget_s: float = 5.0) ->
 
 def run(args: argparse.Namespace) -> int:
     rows = []
-    for front, dev, n in cases(args.quick):
+    choice = getattr(args, "device", "auto")
+    for front, dev, n in cases(args.quick, choice):
         print(f"env: {front} {dev} {n} world(s)…", file=sys.stderr)
         rows.append(run_case(front, dev, n))
     body = "\n".join(
@@ -100,7 +99,11 @@ def run(args: argparse.Namespace) -> int:
     )
     if not args.no_write:
         write_report(
-            "env", rows, out=args.out, title="Pour-v0: environment throughput", body_md=body
+            report_stem("env", choice),
+            rows,
+            out=args.out,
+            title="Pour-v0: environment throughput",
+            body_md=body,
         )
     if args.json:
         print(json.dumps({"suite": "env", "rows": rows}))

@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from pourbench.bench._report import markdown_table, write_report
+from pourbench.bench._report import devices, markdown_table, report_stem, write_report
 from pourbench.bench.fluids_baseline import BaselinePBF
 from pourbench.fluids.shapes import BoxShell
-from pourbench.fluids.solver import PBFSolver, SolverConfig, cuda_available
+from pourbench.fluids.solver import PBFSolver, SolverConfig
 from pourbench.fluids.validation import (
     MARTIN_MOYCE,
     REST_FILLS_G,
@@ -35,6 +35,7 @@ from pourbench.fluids.validation import (
 
 TARGET_CPU_PPS = 1_000_000  # issue target at 16k particles on one core
 TARGET_CUDA_PPS = 1_000_000_000
+HAS_CUDA = True
 
 
 def _block(n: int, d: float) -> tuple[np.ndarray, BoxShell]:
@@ -101,16 +102,20 @@ def run_case(
     return row
 
 
-def cases(quick: bool) -> list[tuple[str, int, int, str]]:
+def cases(quick: bool, device: str = "auto") -> list[tuple[str, int, int, str]]:
     """(device, particles, worlds, pair-list mode) of every row; the device's default mode,
-    plus the CPU at 16k with the CUDA default (full lists) for comparison."""
-    if quick:
-        return [("cpu", 16_000, 1, "auto")]
-    out = [("cpu", 2_000, 1, "auto"), ("cpu", 16_000, 1, "auto"), ("cpu", 128_000, 1, "auto")]
-    out += [("cpu", 16_000, 1, "full")]
-    if cuda_available():
-        out += [("cuda", n, 1, "auto") for n in (2_000, 16_000, 128_000)]
-        out += [("cuda", 1_024_000, 64, "auto")]
+    plus the CPU at 16k with the CUDA default (full lists) for comparison and CUDA at 128k with
+    the CPU default (half lists, summed with atomics)."""
+    out = []
+    for dev in devices(device, quick):
+        if quick:
+            out.append((dev, 16_000, 1, "auto"))
+        elif dev == "cpu":
+            out += [("cpu", n, 1, "auto") for n in (2_000, 16_000, 128_000)]
+            out += [("cpu", 16_000, 1, "full")]
+        else:
+            out += [("cuda", n, 1, "auto") for n in (2_000, 16_000, 128_000, 1_024_000)]
+            out += [("cuda", 128_000, 1, "half"), ("cuda", 1_024_000, 64, "auto")]
     return out
 
 
@@ -129,16 +134,21 @@ COLUMNS = [
 ]
 
 
-def validation() -> tuple[dict[str, Any], str]:
-    """Run the physical validation experiments; their numbers and a markdown table."""
-    print("fluids: physical validation (rest, weight, viscous pours, dam break)…", file=sys.stderr)
-    rest, late = rest_in_cup(windows=(REST_WINDOW_S, REST_LATE_WINDOW_S))
+def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
+    """Run the physical validation experiments on ``device``; their numbers and a markdown
+    table."""
+    print(
+        f"fluids: physical validation on {device} (rest, weight, viscous pours, dam break)…",
+        file=sys.stderr,
+    )
+    rest, late = rest_in_cup(windows=(REST_WINDOW_S, REST_LATE_WINDOW_S), device=device)
     fills = " / ".join(f"{m:g}" for m in REST_FILLS_G)
     t0, t1 = REST_WINDOW_S
-    w50, w200 = scale_reading(50.0), scale_reading(200.0)
-    t_half, left = half_pour_times()
-    fronts = dam_break_fronts()
+    w50, w200 = scale_reading(50.0, device=device), scale_reading(200.0, device=device)
+    t_half, left = half_pour_times(device=device)
+    fronts = dam_break_fronts(device=device)
     out: dict[str, Any] = {
+        "device": device,
         "rest_density_error": rest.density_error,
         "rest_max_speed_m_s": rest.max_speed,
         "rest_median_max_speed_m_s": rest.median_max_speed,
@@ -183,10 +193,12 @@ def validation() -> tuple[dict[str, Any], str]:
 
 def run(args: argparse.Namespace) -> int:
     rows = []
-    for device, n, worlds, lists in cases(args.quick):
+    choice = getattr(args, "device", "auto")
+    for device, n, worlds, lists in cases(args.quick, choice):
         print(f"fluids: {device} {n} particles, {worlds} world(s), {lists} lists…", file=sys.stderr)
         rows.append(run_case(device, n, worlds, pair_lists=lists))
-    checks, checks_md = ({}, "") if args.quick else validation()
+    checks_device = "cuda" if choice == "cuda" else "cpu"
+    checks, checks_md = ({}, "") if args.quick else validation(checks_device)
     body = "\n".join(
         [
             "Dam-break block in a tank, 4 Jacobi density iterations, dt = 1/240 s, spacing "
@@ -204,14 +216,14 @@ def run(args: argparse.Namespace) -> int:
             f"Targets: ≥ {TARGET_CPU_PPS:,} particle-steps/s at 16k particles on one CPU core; "
             f"≥ {TARGET_CUDA_PPS:,} on CUDA at 1M+ particles. Warp runs CPU kernels on one core.",
             "",
-            "## Physical checks" if checks_md else "",
+            f"## Physical checks ({checks_device})" if checks_md else "",
             "",
             checks_md,
         ]
     )
     if not args.no_write:
         write_report(
-            "fluids",
+            report_stem("fluids", choice),
             rows,
             out=args.out,
             title="Fluid solver: throughput and physical checks",

@@ -99,9 +99,11 @@ def rest_in_cup(
     return tuple(results)
 
 
-def scale_reading(mass_g: float, seconds: float = 1.5, settle: float = 1.0) -> float:
+def scale_reading(
+    mass_g: float, seconds: float = 1.5, settle: float = 1.0, device: str = "cpu"
+) -> float:
     """Mean force-sensor reading (grams) under a cup holding ``mass_g`` of settled water."""
-    scene = two_cup_scene("water", mass_g=0.0, target_g=mass_g)
+    scene = two_cup_scene("water", mass_g=0.0, target_g=mass_g, config=SolverConfig(device=device))
     readings = []
     while scene.solver.time < seconds:
         scene.step()
@@ -111,7 +113,10 @@ def scale_reading(mass_g: float, seconds: float = 1.5, settle: float = 1.0) -> f
 
 
 def half_pour_times(
-    liquids: Sequence[str] = VISCOUS_ORDER, seconds: float = 4.0, spacing: float = 0.006
+    liquids: Sequence[str] = VISCOUS_ORDER,
+    seconds: float = 4.0,
+    spacing: float = 0.006,
+    device: str = "cpu",
 ) -> tuple[np.ndarray, np.ndarray]:
     """All liquids poured with the same tilt, one world each in one solver.
 
@@ -120,7 +125,8 @@ def half_pour_times(
         step; inf if never), and the grams left in the source after ``seconds``.
     """
     n = len(liquids)
-    scene = two_cup_scene(list(liquids), 200.0, num_worlds=n, config=SolverConfig(spacing=spacing))
+    cfg = SolverConfig(spacing=spacing, device=device)
+    scene = two_cup_scene(list(liquids), 200.0, num_worlds=n, config=cfg)
     s = scene.solver
     total = np.array([scene.metrics(w).total_g for w in range(n)])
     t_half = np.full(n, np.inf)
@@ -136,9 +142,11 @@ def half_pour_times(
     return t_half, prev_left
 
 
-def dam_break_fronts(a: float = 0.05, spacing: float = 0.0025) -> dict[float, float]:
+def dam_break_fronts(
+    a: float = 0.05, spacing: float = 0.0025, device: str = "cpu"
+) -> dict[float, float]:
     """Release a water column (width a, height 2a) in a tank; surge front Z at MARTIN_MOYCE's T."""
-    cfg = SolverConfig(spacing=spacing, dt=1.0 / 480.0)
+    cfg = SolverConfig(spacing=spacing, dt=1.0 / 480.0, device=device)
     s = PBFSolver(1, cfg)
     tank = BoxShell(half_x=0.15, half_y=0.0125, depth=0.12, wall=0.005)
     s.add_container(0, tank)
