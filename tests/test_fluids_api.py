@@ -277,11 +277,8 @@ def test_half_neighbour_lists_hold_every_pair_once() -> None:
         s.fill(w, c, 60.0 + 40.0 * w, "water")
     s.step(5)
     s._build_neighbours()  # lists of the current positions (the step builds them on p)
-    p, count, start = s.p.numpy(), s.nbr_count.numpy(), s.nbr_start.numpy()
-    lists = s.nbr.numpy()
-    listed = [
-        (min(i, j), max(i, j)) for i in range(len(p)) for j in lists[start[i] : start[i] + count[i]]
-    ]
+    p = s.p.numpy()
+    listed = [(min(i, j), max(i, j)) for i, js in enumerate(s.neighbour_lists()) for j in js]
     assert len(listed) == len(set(listed))  # no pair twice
     world = s.worlds()
     h = s.config.h
@@ -293,6 +290,31 @@ def test_half_neighbour_lists_hold_every_pair_once() -> None:
     assert len(truth) > 10_000
     total = np.bincount(np.array(listed).ravel(), minlength=len(p))
     np.testing.assert_array_equal(s.neighbour_counts(), total)
+
+
+def test_full_neighbour_lists_hold_every_neighbour() -> None:
+    """Full lists (interleaved, the CUDA layout) list every neighbour of every particle, once,
+    in both directions (checked on the CPU, where the same kernels run)."""
+    from scipy.spatial import cKDTree
+
+    s = PBFSolver(2, SolverConfig(pair_lists="full"))
+    for w in range(2):
+        s.add_collider(w, "plane", [0.0])
+        s.fill(w, s.add_container(w, cup(0.04, 0.08)), 50.0 + 30.0 * w, "water")
+    s.step(5)
+    s._build_neighbours()
+    p, lists = s.p.numpy(), s.neighbour_lists()
+    assert all(len(js) == len(set(js.tolist())) and i not in js for i, js in enumerate(lists))
+    listed = {(i, int(j)) for i, js in enumerate(lists) for j in js}
+    assert listed == {(j, i) for i, j in listed}  # symmetric
+    world = s.worlds()
+    truth = {(i, j) for i, j in cKDTree(p).query_pairs(s.config.h) if world[i] == world[j]}
+    truth |= {(j, i) for i, j in truth}
+    differ = np.array(sorted(listed ^ truth)).reshape(-1, 2)
+    gap = np.linalg.norm(p[differ[:, 0]] - p[differ[:, 1]], axis=1)
+    assert np.all(np.abs(gap - s.config.h) < 1e-6 * s.config.h), gap  # float ties at r = h
+    assert len(truth) > 10_000
+    np.testing.assert_array_equal(s.neighbour_counts(), [len(js) for js in lists])
 
 
 def test_readbacks_are_snapshots() -> None:

@@ -19,11 +19,11 @@ from typing import Any
 
 
 def git_sha() -> str:
-    """Short SHA of HEAD, with ``-dirty`` when the tree has uncommitted changes; in a copy of
-    the source without ``.git`` (a tree shipped to a GPU machine, say), ``$POURBENCH_GIT_SHA``
-    names the commit it was copied from."""
-    if not Path(".git").exists() and os.environ.get("POURBENCH_GIT_SHA"):
-        return os.environ["POURBENCH_GIT_SHA"] + " (exported tree)"
+    """Short SHA of HEAD, with ``-dirty`` when the tree has uncommitted changes. For a copy of
+    the source run elsewhere (a tree shipped to a GPU machine, say), ``$POURBENCH_GIT_SHA``
+    names the commit it was copied from and takes precedence."""
+    if os.environ.get("POURBENCH_GIT_SHA"):
+        return os.environ["POURBENCH_GIT_SHA"] + " (copied tree)"
     try:
         sha = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True

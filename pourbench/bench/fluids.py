@@ -208,8 +208,8 @@ def run(args: argparse.Namespace) -> int:
             "(`pourbench/bench/fluids_baseline.py`: hash-grid query in every pass, no "
             "viscosity/vorticity/SDF collisions) timed in the same process. `pair_lists`: "
             "half lists (each pair once, added to both particles; the CPU default) or full "
-            "lists (each particle sums its own side; the CUDA default, reproducible without "
-            "atomics between threads).",
+            "lists (each particle sums its own side, lists interleaved so a GPU warp reads "
+            "them coalesced; the CUDA default, reproducible without atomics between threads).",
             "",
             markdown_table(rows, COLUMNS),
             "",

@@ -17,9 +17,15 @@ default): each pair (i, j) within h is listed once, by the particle whose cell c
 is done once per pair. Full lists (the CUDA default): each particle lists all its neighbours
 and sums only its own side, with no atomics between threads, so CUDA runs stay bit-for-bit
 reproducible; the pair terms are the same expressions in both modes (:func:`pair_kernels`).
-The lists are built with a fixed capacity per particle, then packed into one array
-(``nbr[start[i] : start[i] + count[i]]``), which the pair passes stream through; the density
-pass caches each pair's gradient factor and tensile term for the position pass.
+
+Entry ``c`` of particle ``i``'s list sits at ``nbr[start[i] + c * stride]``. Half lists are
+built with a fixed capacity per particle, then packed (``stride`` 1, ``start`` the exclusive
+scan of the counts), which the CPU's serial loops stream through; the density pass caches each
+pair's gradient factor and tensile term for the position pass. Full lists are interleaved
+(``start[i] = i``, ``stride`` = particle count): the threads of a GPU warp read the c-th
+entries of consecutive particles from consecutive addresses, the build writes them in place
+(no packing), and the position pass recomputes the pair terms instead of reading a cache
+(arithmetic is cheaper than memory there).
 """
 
 from __future__ import annotations
@@ -78,6 +84,24 @@ def spiky_factor(dist: float, h: float, coef: float) -> float:
 def spiky_grad(r: wp.vec3, dist: float, h: float, coef: float) -> wp.vec3:
     """Spiky-kernel gradient; ``coef`` = −45/(π h⁶) / w0 (constant scaled by the rest sum)."""
     return r * spiky_factor(dist, h, coef)
+
+
+@wp.func
+def density_pair(
+    d2: float, h: float, grad_c: float, scorr_k: float, scorr_n: float, scorr_wdq: float
+) -> wp.vec3:
+    """Terms of a pair at squared distance ``d2``: (gradient factor, tensile s_corr, W).
+
+    ∇_i W_ij = factor · r_ij; s_corr = −k (W_poly6(r)/W_poly6(Δq))^n (Macklin & Müller 2013,
+    Eq. 13); W is the spiky density kernel (without its constant)."""
+    dist = wp.sqrt(d2)
+    ratio = poly6(d2, h) / scorr_wdq
+    s_corr = float(0.0)
+    if scorr_n == 4.0:
+        s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
+    else:
+        s_corr = -scorr_k * wp.pow(ratio, scorr_n)
+    return wp.vec3(spiky_factor(dist, h, grad_c), s_corr, spiky(dist, h))
 
 
 @wp.func
@@ -189,16 +213,19 @@ def bucket_ranges(
 
 @wp.kernel
 def pack_neighbours(
-    nbr_build: wp.array2d(dtype=wp.int32),
+    nbr_build: wp.array(dtype=wp.int32),
+    max_nb: int,
     count: wp.array(dtype=wp.int32),
     start: wp.array(dtype=wp.int32),
     nbr: wp.array(dtype=wp.int32),
 ):
-    """Copy each particle's list to ``nbr[start[i]:]`` (``start``: exclusive scan of count)."""
+    """Copy each particle's half list (``max_nb`` slots from ``nbr_build[i * max_nb]``) to
+    ``nbr[start[i]:]`` (``start``: exclusive scan of count)."""
     i = wp.tid()
     s = start[i]
+    b = i * max_nb
     for k in range(count[i]):
-        nbr[s + k] = nbr_build[i, k]
+        nbr[s + k] = nbr_build[b + k]
 
 
 @wp.func
@@ -293,6 +320,48 @@ def pair_kernels(half: bool) -> PairKernels:
     """The pair kernels for half lists (``half``) or full lists; the mode is a compile-time
     constant (``wp.static``) so neither variant pays for the other's branches."""
 
+    @wp.func
+    def scan_cell(
+        i: int,
+        pi: wp.vec3,
+        wi: int,
+        c: wp.vec3i,
+        offset: int,
+        sorted_idx: wp.array(dtype=wp.int32),
+        p_sorted: wp.array(dtype=wp.vec3),
+        world_sorted: wp.array(dtype=wp.int32),
+        cell_sorted: wp.array(dtype=wp.vec3i),
+        start: wp.array(dtype=wp.int32),
+        end: wp.array(dtype=wp.int32),
+        mask: int,
+        h2: float,
+        max_nb: int,
+        row_stride: int,
+        col_stride: int,
+        nbr: wp.array(dtype=wp.int32),
+        count: int,
+    ) -> int:
+        """List particle i's neighbours in cell ``c`` (``offset`` from its own cell, > 0 for a
+        forward cell); returns the new list length."""
+        n = count
+        b = bucket_of(wi, c, mask)
+        # while-loops compile to tighter CPU code than range() loops in Warp
+        k = int(start[b])
+        k_end = end[b]
+        while k < k_end:
+            r = pi - p_sorted[k]
+            if wp.dot(r, r) < h2:
+                j = sorted_idx[k]
+                ck = cell_sorted[k]
+                same_cell = ck[0] == c[0] and ck[1] == c[1] and ck[2] == c[2]
+                forward = offset > 0 or j > i or (wp.static(not half) and j != i)
+                if same_cell and forward and world_sorted[k] == wi:
+                    if n < max_nb:
+                        nbr[i * row_stride + n * col_stride] = j
+                        n += 1
+            k += 1
+        return n
+
     @wp.kernel
     def build_neighbours(
         p: wp.array(dtype=wp.vec3),
@@ -307,44 +376,52 @@ def pair_kernels(half: bool) -> PairKernels:
         mask: int,
         h: float,
         max_nb: int,
-        nbr: wp.array2d(dtype=wp.int32),
+        row_stride: int,
+        first_cell: int,
+        nbr: wp.array(dtype=wp.int32),
         nbr_count: wp.array(dtype=wp.int32),
     ):
         """Neighbour list of every particle, in a fixed (cell, index) order.
 
         ``half = 1``: only the 13 forward cells of the 27 around a particle's cell are scanned
-        (and, in its own cell, higher indices), so each pair within h is found once. ``half = 0``:
-        all 27 cells, every neighbour. A candidate's cell and world are checked against the
+        (and, in its own cell, higher indices), so each pair within h is found once.
+        ``half = 0``: all 27 cells from ``first_cell`` (0; an argument, so that the loop is not
+        unrolled), every neighbour. A candidate's cell and world are checked against the
         scanned ones (a bucket may hold several cells). A list longer than ``max_nb`` is cut.
+        Entry c of particle i goes to ``nbr[i * row_stride + c * col_stride]``: (max_nb, 1)
+        for half lists (packed afterwards), (1, particle count) for interleaved full lists.
         """
+        col_stride = int(1)
+        if wp.static(not half):
+            col_stride = nbr_count.shape[0]
         i = wp.tid()
         pi = p[i]
         wi = world[i]
         ci = cell[i]
         h2 = h * h
         count = int(0)
-        for dz in range(wp.static(0 if half else -1), 2):
-            for dy in range(-1, 2):
-                for dx in range(-1, 2):
-                    offset = dz * 9 + dy * 3 + dx
-                    if offset >= 0 or wp.static(not half):
-                        c = wp.vec3i(ci[0] + dx, ci[1] + dy, ci[2] + dz)
-                        b = bucket_of(wi, c, mask)
-                        # while-loops compile to tighter CPU code than range() loops in Warp
-                        k = int(start[b])
-                        k_end = end[b]
-                        while k < k_end:
-                            r = pi - p_sorted[k]
-                            if wp.dot(r, r) < h2:
-                                j = sorted_idx[k]
-                                ck = cell_sorted[k]
-                                same_cell = ck[0] == c[0] and ck[1] == c[1] and ck[2] == c[2]
-                                forward = offset > 0 or j > i or (wp.static(not half) and j != i)
-                                if same_cell and forward and world_sorted[k] == wi:
-                                    if count < max_nb:
-                                        nbr[i, count] = j
-                                        count += 1
-                            k += 1
+        if wp.static(half):
+            # the 13 forward cells, unrolled: the tightest CPU code
+            for dz in range(0, 2):
+                for dy in range(-1, 2):
+                    for dx in range(-1, 2):
+                        offset = dz * 9 + dy * 3 + dx
+                        if offset >= 0:
+                            count = scan_cell(
+                                i, pi, wi, wp.vec3i(ci[0] + dx, ci[1] + dy, ci[2] + dz), offset,
+                                sorted_idx, p_sorted, world_sorted, cell_sorted, start, end,
+                                mask, h2, max_nb, row_stride, col_stride, nbr, count,
+                            )  # fmt: skip
+        else:
+            # all 27 cells, o = 9 (dz + 1) + 3 (dy + 1) + dx + 1, in a loop with a run-time
+            # bound: unrolled, the kernel needs 93 registers a thread and a GPU runs it at a
+            # quarter of its occupancy
+            for o in range(first_cell, 27):
+                c = wp.vec3i(ci[0] + o % 3 - 1, ci[1] + (o // 3) % 3 - 1, ci[2] + o // 9 - 1)
+                count = scan_cell(
+                    i, pi, wi, c, o - 13, sorted_idx, p_sorted, world_sorted, cell_sorted,
+                    start, end, mask, h2, max_nb, row_stride, col_stride, nbr, count,
+                )  # fmt: skip
         nbr_count[i] = count
 
     @wp.kernel
@@ -353,6 +430,7 @@ def pair_kernels(half: bool) -> PairKernels:
         nbr: wp.array(dtype=wp.int32),
         nbr_start: wp.array(dtype=wp.int32),
         nbr_count: wp.array(dtype=wp.int32),
+        stride: int,
         h: float,
         grad_c: float,
         scorr_k: float,
@@ -364,35 +442,28 @@ def pair_kernels(half: bool) -> PairKernels:
         """Pair sums of the density constraint: Σ_j ∇_i C, Σ_j W_ij and Σ_j |∇_j C|² in ``sums``
         (zero on entry; :func:`compute_lambda` clears them).
 
-        Each pair's gradient factor (∇W_ij = factor · r_ij) and tensile term
-        s_corr = −k (W(r)/W(Δq))^n go to ``pair`` for :func:`compute_delta`.
+        With half lists each pair's gradient factor (∇W_ij = factor · r_ij) and tensile term
+        s_corr (:func:`density_pair`) go to ``pair`` for :func:`compute_delta`.
         """
         i = wp.tid()
         pi = p[i]
         acc = vec5(0.0)
         # while-loops compile to tighter CPU code than range() loops in Warp
         k = nbr_start[i]
-        k_end = k + nbr_count[i]
+        k_end = k + nbr_count[i] * stride
         while k < k_end:
             j = nbr[k]
             r = pi - p[j]
-            d2 = wp.dot(r, r)
-            dist = wp.sqrt(d2)
-            w = spiky(dist, h)
-            factor = spiky_factor(dist, h, grad_c)
-            g = r * factor  # ∇_i W_ij = −∇_j W_ij
+            terms = density_pair(wp.dot(r, r), h, grad_c, scorr_k, scorr_n, scorr_wdq)
+            w = terms[2]
+            g = r * terms[0]  # ∇_i W_ij = −∇_j W_ij
             g2 = wp.dot(g, g)
-            ratio = poly6(d2, h) / scorr_wdq
-            s_corr = float(0.0)
-            if scorr_n == 4.0:
-                s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
-            else:
-                s_corr = -scorr_k * wp.pow(ratio, scorr_n)
-            pair[k] = wp.vec2(factor, s_corr)
+            if wp.static(half):  # cached for compute_delta (full lists recompute them)
+                pair[k] = wp.vec2(terms[0], terms[1])
             acc += vec5(g[0], g[1], g[2], w, g2)
             if wp.static(half):
                 wp.atomic_add(sums, j, vec5(-g[0], -g[1], -g[2], w, g2))
-            k += 1
+            k += stride
         if wp.static(half):
             wp.atomic_add(sums, i, acc)
         else:  # full lists: only this thread writes particle i
@@ -404,27 +475,39 @@ def pair_kernels(half: bool) -> PairKernels:
         nbr: wp.array(dtype=wp.int32),
         nbr_start: wp.array(dtype=wp.int32),
         nbr_count: wp.array(dtype=wp.int32),
+        stride: int,
         lam: wp.array(dtype=float),
         pair: wp.array(dtype=wp.vec2),
+        h: float,
+        grad_c: float,
+        scorr_k: float,
+        scorr_n: float,
+        scorr_wdq: float,
         delta: wp.array(dtype=wp.vec3),
     ):
-        """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi) from the pair terms cached by
-        :func:`density_sums`, each pair added to both particles (``delta`` is zero on entry;
-        :func:`apply_delta` clears it)."""
+        """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi); half lists read the pair terms
+        cached by :func:`density_sums` and add each pair to both particles, full lists
+        recompute them (``delta`` is zero on entry; :func:`apply_delta` clears it)."""
         i = wp.tid()
         pi = p[i]
         li = lam[i]
         dp = wp.vec3(0.0)
         k = nbr_start[i]
-        k_end = k + nbr_count[i]
+        k_end = k + nbr_count[i] * stride
         while k < k_end:
             j = nbr[k]
-            e = pair[k]
-            t = (pi - p[j]) * ((li + lam[j] + e[1]) * e[0])
+            r = pi - p[j]
+            e = wp.vec2(0.0)
+            if wp.static(half):
+                e = pair[k]
+            else:
+                terms = density_pair(wp.dot(r, r), h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                e = wp.vec2(terms[0], terms[1])
+            t = r * ((li + lam[j] + e[1]) * e[0])
             dp += t
             if wp.static(half):
                 wp.atomic_sub(delta, j, t)
-            k += 1
+            k += stride
         if wp.static(half):
             wp.atomic_add(delta, i, dp)
         else:  # full lists: only this thread writes particle i
@@ -437,6 +520,7 @@ def pair_kernels(half: bool) -> PairKernels:
         nbr: wp.array(dtype=wp.int32),
         nbr_start: wp.array(dtype=wp.int32),
         nbr_count: wp.array(dtype=wp.int32),
+        stride: int,
         h: float,
         grad_c: float,
         curl: int,
@@ -455,7 +539,7 @@ def pair_kernels(half: bool) -> PairKernels:
         nn = wp.vec3(0.0)
         # while-loops compile to tighter CPU code than range() loops in Warp
         k = nbr_start[i]
-        k_end = k + nbr_count[i]
+        k_end = k + nbr_count[i] * stride
         while k < k_end:
             j = nbr[k]
             r = xi - x[j]
@@ -468,7 +552,7 @@ def pair_kernels(half: bool) -> PairKernels:
                 om += c
                 if wp.static(half):
                     wp.atomic_add(omega, j, c)
-            k += 1
+            k += stride
         if wp.static(half):
             wp.atomic_add(omega, i, om)
             wp.atomic_add(normal, i, nn * h)
@@ -485,6 +569,7 @@ def pair_kernels(half: bool) -> PairKernels:
         nbr: wp.array(dtype=wp.int32),
         nbr_start: wp.array(dtype=wp.int32),
         nbr_count: wp.array(dtype=wp.int32),
+        stride: int,
         world: wp.array(dtype=wp.int32),
         vorticity: wp.array(dtype=float),
         cohesion: wp.array(dtype=float),
@@ -527,7 +612,7 @@ def pair_kernels(half: bool) -> PairKernels:
         acc_dv = wp.vec3(0.0)
         # while-loops compile to tighter CPU code than range() loops in Warp
         k = nbr_start[i]
-        k_end = k + nbr_count[i]
+        k_end = k + nbr_count[i] * stride
         while k < k_end:
             j = nbr[k]
             vj = v[j]
@@ -553,7 +638,7 @@ def pair_kernels(half: bool) -> PairKernels:
             acc_dv += f
             if wp.static(half):
                 wp.atomic_sub(dv_sum, j, f)
-            k += 1
+            k += stride
         if wp.static(half):
             wp.atomic_add(vsum, i, acc_v)
             wp.atomic_add(eta, i, acc_eta)

@@ -457,13 +457,18 @@ class PBFSolver:
         self.contacts = wp.zeros(n, dtype=wp.int32, device=dev)
         self.order_keys = wp.zeros(2 * max(n, 1), dtype=wp.int64, device=dev)
         self.order = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
-        # half lists: built per particle with a fixed capacity, then packed (see kernels)
+        # neighbour lists (layouts in pourbench.fluids.kernels): half lists are built with a
+        # fixed capacity per particle, then packed, and cache their pair terms; full lists are
+        # interleaved, written in place by the build (start[i] = i, stride n)
         cap = max(n * cfg.max_neighbours, 1)
-        self.nbr_build = wp.zeros((n, cfg.max_neighbours), dtype=wp.int32, device=dev)
+        half = self.half_lists
+        self.nbr_build = wp.zeros(cap if half else 1, dtype=wp.int32, device=dev)
         self.nbr_count = wp.zeros(n, dtype=wp.int32, device=dev)
-        self.nbr_start = wp.zeros(n, dtype=wp.int32, device=dev)
+        start = np.zeros(n, np.int32) if half else np.arange(n, dtype=np.int32)
+        self.nbr_start = wp.array(start, dtype=wp.int32, device=dev)
+        self.nbr_stride = 1 if half else max(n, 1)
         self.nbr = wp.zeros(cap, dtype=wp.int32, device=dev)
-        self.pair = wp.zeros(cap, dtype=wp.vec2, device=dev)
+        self.pair = wp.zeros(cap if half else 1, dtype=wp.vec2, device=dev)
         self.world_sorted = wp.zeros(max(n, 1), dtype=wp.int32, device=dev)
         # per-world liquid parameters
         attrs = (
@@ -668,6 +673,7 @@ class PBFSolver:
                     self.nbr,
                     self.nbr_start,
                     self.nbr_count,
+                    self.nbr_stride,
                     cfg.h,
                     self.grad_c,
                     self.scorr_scale,
@@ -690,8 +696,14 @@ class PBFSolver:
                     self.nbr,
                     self.nbr_start,
                     self.nbr_count,
+                    self.nbr_stride,
                     self.lam,
                     self.pair,
+                    cfg.h,
+                    self.grad_c,
+                    self.scorr_scale,
+                    cfg.scorr_n,
+                    self.scorr_wdq,
                 ],
                 [self.delta],
             )
@@ -737,6 +749,7 @@ class PBFSolver:
                     self.nbr,
                     self.nbr_start,
                     self.nbr_count,
+                    self.nbr_stride,
                     cfg.h,
                     self.grad_c,
                     int(self._needs_curl),
@@ -754,6 +767,7 @@ class PBFSolver:
                 self.nbr,
                 self.nbr_start,
                 self.nbr_count,
+                self.nbr_stride,
                 self.world,
                 P["vorticity_confinement"],
                 P["cohesion"],
@@ -850,16 +864,19 @@ class PBFSolver:
                 self.bucket_mask,
                 cfg.h,
                 cfg.max_neighbours,
+                cfg.max_neighbours if self.half_lists else 1,
+                0,
             ],
-            [self.nbr_build, self.nbr_count],
+            [self.nbr_build if self.half_lists else self.nbr, self.nbr_count],
         )
-        wp.utils.array_scan(self.nbr_count, self.nbr_start, inclusive=False)
-        self._launch(
-            "pack_neighbours",
-            K.pack_neighbours,
-            [self.nbr_build, self.nbr_count, self.nbr_start],
-            [self.nbr],
-        )
+        if self.half_lists:
+            wp.utils.array_scan(self.nbr_count, self.nbr_start, inclusive=False)
+            self._launch(
+                "pack_neighbours",
+                K.pack_neighbours,
+                [self.nbr_build, cfg.max_neighbours, self.nbr_count, self.nbr_start],
+                [self.nbr],
+            )
 
     def _advance_clock(self) -> None:
         self.time += self.config.dt
@@ -902,11 +919,20 @@ class PBFSolver:
         each listed pair."""
         if self._dirty:
             return np.zeros(len(self._x), np.int32)
-        count, start = self.nbr_count.numpy(), self.nbr_start.numpy()
+        count = self.nbr_count.numpy()
         if not self.half_lists:
             return count.copy()
-        listed = self.nbr.numpy()[: int(start[-1] + count[-1])] if self.n else []
+        listed = np.concatenate([np.zeros(0, np.int32), *self.neighbour_lists()])
         return (count + np.bincount(listed, minlength=self.n)).astype(np.int32)
+
+    def neighbour_lists(self) -> list[np.ndarray]:
+        """Particle indices listed by each particle at the last neighbour build (half lists:
+        each pair once, by one of its particles; full lists: all neighbours)."""
+        if self._dirty or self.n == 0:
+            return [np.zeros(0, np.int32) for _ in range(len(self._x))]
+        count, start = self.nbr_count.numpy(), self.nbr_start.numpy()
+        nbr, stride = self.nbr.numpy(), self.nbr_stride
+        return [nbr[s : s + c * stride : stride].copy() for s, c in zip(start, count, strict=True)]
 
     def density_error(self, world: int | None = None) -> float:
         """Mean |ρ/ρ0 − 1| over bulk particles (≥ 90 % of a lattice particle's neighbours).
