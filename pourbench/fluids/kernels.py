@@ -105,6 +105,31 @@ def density_pair(
 
 
 @wp.func
+def density_term(
+    r: wp.vec3, h: float, grad_c: float, scorr_k: float, scorr_n: float, scorr_wdq: float
+) -> vec5:
+    """A pair's share of the density sums: ∇_i W_ij (xyz), W_ij and |∇W_ij|²."""
+    terms = density_pair(wp.dot(r, r), h, grad_c, scorr_k, scorr_n, scorr_wdq)
+    g = r * terms[0]
+    return vec5(g[0], g[1], g[2], terms[2], wp.dot(g, g))
+
+
+@wp.func
+def delta_term(
+    r: wp.vec3,
+    lam_sum: float,
+    h: float,
+    grad_c: float,
+    scorr_k: float,
+    scorr_n: float,
+    scorr_wdq: float,
+) -> wp.vec3:
+    """A pair's share of Δp_i: (λ_i + λ_j + s_corr) ∇_i W_ij, ``lam_sum`` = λ_i + λ_j."""
+    terms = density_pair(wp.dot(r, r), h, grad_c, scorr_k, scorr_n, scorr_wdq)
+    return r * ((lam_sum + terms[1]) * terms[0])
+
+
+@wp.func
 def cohesion_spline(r: float, h: float) -> float:
     """Akinci et al. (2013) cohesion spline, normalised to a peak of 1 at r = h/2."""
     if r >= h or r <= 0.0:
@@ -461,6 +486,18 @@ def pair_kernels(half: bool) -> PairKernels:
         # while-loops compile to tighter CPU code than range() loops in Warp
         k = nbr_start[i]
         k_end = k + nbr_count[i] * stride
+        if wp.static(not half):
+            # four neighbours an iteration: their loads are independent, so a GPU thread has
+            # four in flight instead of waiting for each (the tail is left to the loop below)
+            while k + 3 * stride < k_end:
+                j0, j1 = nbr[k], nbr[k + stride]
+                j2, j3 = nbr[k + 2 * stride], nbr[k + 3 * stride]
+                r0, r1, r2, r3 = pi - p[j0], pi - p[j1], pi - p[j2], pi - p[j3]
+                acc += density_term(r0, h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                acc += density_term(r1, h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                acc += density_term(r2, h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                acc += density_term(r3, h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                k += 4 * stride
         while k < k_end:
             j = nbr[k]
             r = pi - p[j]
@@ -504,6 +541,17 @@ def pair_kernels(half: bool) -> PairKernels:
         dp = wp.vec3(0.0)
         k = nbr_start[i]
         k_end = k + nbr_count[i] * stride
+        if wp.static(not half):  # four neighbours an iteration, as in density_sums
+            while k + 3 * stride < k_end:
+                j0, j1 = nbr[k], nbr[k + stride]
+                j2, j3 = nbr[k + 2 * stride], nbr[k + 3 * stride]
+                r0, r1, r2, r3 = pi - p[j0], pi - p[j1], pi - p[j2], pi - p[j3]
+                l0, l1, l2, l3 = li + lam[j0], li + lam[j1], li + lam[j2], li + lam[j3]
+                dp += delta_term(r0, l0, h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                dp += delta_term(r1, l1, h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                dp += delta_term(r2, l2, h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                dp += delta_term(r3, l3, h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                k += 4 * stride
         while k < k_end:
             j = nbr[k]
             r = pi - p[j]
