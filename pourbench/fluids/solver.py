@@ -826,7 +826,7 @@ class PBFSolver:
         inv_cell = 1.0 / cfg.h
         self._launch(
             "hash_particles",
-            K.hash_particles,
+            self.pairk.hash_particles,
             [self.p, self.world, inv_cell, self.bucket_mask],
             [self.cell, self.keys, self.sorted_idx],
         )
@@ -852,9 +852,6 @@ class PBFSolver:
             "build_neighbours",
             self.pairk.build_neighbours,
             [
-                self.p,
-                self.world,
-                self.cell,
                 self.sorted_idx,
                 self.p_sorted,
                 self.world_sorted,
