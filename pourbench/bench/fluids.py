@@ -214,7 +214,9 @@ def run(args: argparse.Namespace) -> int:
             markdown_table(rows, COLUMNS),
             "",
             f"Targets: ≥ {TARGET_CPU_PPS:,} particle-steps/s at 16k particles on one CPU core; "
-            f"≥ {TARGET_CUDA_PPS:,} on CUDA at 1M+ particles. Warp runs CPU kernels on one core.",
+            f"≥ {TARGET_CUDA_PPS:,} on CUDA at 1M+ particles. Warp runs CPU kernels on one core. "
+            "`pourbench bench fluids --device cuda` writes the CUDA rows alone to "
+            "`fluids_cuda.md`.",
             "",
             f"## Physical checks ({checks_device})" if checks_md else "",
             "",

@@ -170,7 +170,8 @@ def predict(
 # a world's neighbour lists (and its floating-point sums) are the same whatever other worlds
 # share the solver, without offsets or sorting. The bucket function depends on the list mode
 # (``pair_kernels``): a Morton code for full lists, a multiplicative hash for half lists; the
-# lists come out the same with either.
+# lists come out the same with either. (``wp.HashGrid``, which the benchmark's baseline uses,
+# knows no worlds: its queries would return other worlds' particles to be filtered.)
 
 
 @wp.func
