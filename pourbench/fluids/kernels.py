@@ -130,6 +130,40 @@ def delta_term(
 
 
 @wp.func
+def filter_pair(
+    r: wp.vec3,
+    vi: wp.vec3,
+    vj: wp.vec3,
+    ni: wp.vec3,
+    nj: wp.vec3,
+    om_i: float,
+    om_j: float,
+    vort_on: bool,
+    h: float,
+    grad_c: float,
+    spacing: float,
+    kc: float,
+    ks: float,
+    kf: float,
+):
+    """A pair's velocity-filter terms for particle i (see ``filter_sums``): W_ij (v_j, 1),
+    (|ω_j| − |ω_i|) ∇_i W_ij, and the cohesion, curvature and friction velocity change."""
+    d = wp.length(r)
+    wij = poly6(d * d, h)
+    e = wp.vec3(0.0)
+    if vort_on:
+        e = spiky_grad(r, d, h, grad_c) * (om_j - om_i)
+    f = (nj - ni) * ks  # curvature
+    if d > 1.0e-9:
+        rh = r / d
+        f -= rh * (cohesion_spline(d, h) * kc)
+        if d < spacing:
+            dv = vj - vi
+            f += (dv - rh * wp.dot(dv, rh)) * ((1.0 - d / spacing) * kf)
+    return wp.vec4(vj[0] * wij, vj[1] * wij, vj[2] * wij, wij), e, f
+
+
+@wp.func
 def cohesion_spline(r: float, h: float) -> float:
     """Akinci et al. (2013) cohesion spline, normalised to a peak of 1 at r = h/2."""
     if r >= h or r <= 0.0:
@@ -315,6 +349,16 @@ def gather_state(
 # ------------------------------------------------------------- step 3: density constraints
 
 
+@wp.func
+def density_and_lambda(a: vec5, h: float, w0: float, eps: float) -> wp.vec2:
+    """(ρ_i/ρ0, λ_i) from a particle's density sums ``a``: λ_i = −C_i / (Σ|∇C|² + ε) of the
+    unilateral density constraint."""
+    grad_i = wp.vec3(a[0], a[1], a[2])
+    rho = (a[3] + spiky(0.0, h)) / w0
+    c = wp.max(rho - 1.0, 0.0)  # unilateral: a free surface is not pulled together
+    return wp.vec2(rho, -c / (a[4] + wp.dot(grad_i, grad_i) + eps))
+
+
 @wp.kernel
 def compute_lambda(
     sums: wp.array(dtype=vec5),
@@ -324,22 +368,13 @@ def compute_lambda(
     lam: wp.array(dtype=float),
     density: wp.array(dtype=float),
 ):
-    """λ_i = −C_i / (Σ|∇C|² + ε) of the unilateral density constraint; clears the sums."""
+    """λ of every particle from its density sums (half lists; full lists compute it at the end
+    of their density pass); clears the sums."""
     i = wp.tid()
-    a = sums[i]
-    grad_i = wp.vec3(a[0], a[1], a[2])
-    rho = (a[3] + spiky(0.0, h)) / w0
-    density[i] = rho
-    c = wp.max(rho - 1.0, 0.0)  # unilateral: a free surface is not pulled together
-    lam[i] = -c / (a[4] + wp.dot(grad_i, grad_i) + eps)
+    d = density_and_lambda(sums[i], h, w0, eps)
+    density[i] = d[0]
+    lam[i] = d[1]
     sums[i] = vec5(0.0)
-
-
-@wp.kernel
-def apply_delta(p: wp.array(dtype=wp.vec3), delta: wp.array(dtype=wp.vec3), sor: float):
-    i = wp.tid()
-    p[i] = p[i] + delta[i] * sor
-    delta[i] = wp.vec3(0.0)
 
 
 # ------------------------------------------------------------ pair passes (both list modes)
@@ -510,11 +545,17 @@ def pair_kernels(half: bool) -> PairKernels:
         scorr_k: float,
         scorr_n: float,
         scorr_wdq: float,
+        w0: float,
+        eps: float,
         sums: wp.array(dtype=vec5),
         pair: wp.array(dtype=wp.vec2),
+        lam: wp.array(dtype=float),
+        density: wp.array(dtype=float),
     ):
-        """Pair sums of the density constraint: Σ_j ∇_i C, Σ_j W_ij and Σ_j |∇_j C|² in ``sums``
-        (zero on entry; :func:`compute_lambda` clears them).
+        """Pair sums of the density constraint: Σ_j ∇_i C, Σ_j W_ij and Σ_j |∇_j C|². Half lists
+        add them to ``sums`` (zero on entry; :func:`compute_lambda` turns them into λ and clears
+        them); full lists have each particle's whole sum in one thread and write its density
+        and λ directly.
 
         With half lists each pair's gradient factor (∇W_ij = factor · r_ij) and tensile term
         s_corr (:func:`density_pair`) go to ``pair`` for :func:`compute_delta`.
@@ -552,8 +593,10 @@ def pair_kernels(half: bool) -> PairKernels:
             k += stride
         if wp.static(half):
             wp.atomic_add(sums, i, acc)
-        else:  # full lists: only this thread writes particle i
-            sums[i] = acc
+        else:  # full lists: the sums are complete, so λ follows here (no compute_lambda)
+            d = density_and_lambda(acc, h, w0, eps)
+            density[i] = d[0]
+            lam[i] = d[1]
 
     @wp.kernel
     def compute_delta(
@@ -710,6 +753,42 @@ def pair_kernels(half: bool) -> PairKernels:
         # while-loops compile to tighter CPU code than range() loops in Warp
         k = nbr_start[i]
         k_end = k + nbr_count[i] * stride
+        if wp.static(not half):  # four neighbours an iteration, as in density_sums
+            while k + 3 * stride < k_end:
+                j0, j1 = nbr[k], nbr[k + stride]
+                j2, j3 = nbr[k + 2 * stride], nbr[k + 3 * stride]
+                x0, x1, x2, x3 = x[j0], x[j1], x[j2], x[j3]
+                v0, v1, v2, v3 = v[j0], v[j1], v[j2], v[j3]
+                n0, n1, n2, n3 = normal[j0], normal[j1], normal[j2], normal[j3]
+                o0, o1, o2, o3 = float(0.0), float(0.0), float(0.0), float(0.0)
+                if vort_on:
+                    o0, o1 = wp.length(omega[j0]), wp.length(omega[j1])
+                    o2, o3 = wp.length(omega[j2]), wp.length(omega[j3])
+                a, e, f = filter_pair(
+                    xi - x0, vi, v0, ni, n0, om_i, o0, vort_on, h, grad_c, spacing, kc, ks, kf
+                )
+                acc_v += a
+                acc_eta += e
+                acc_dv += f
+                a, e, f = filter_pair(
+                    xi - x1, vi, v1, ni, n1, om_i, o1, vort_on, h, grad_c, spacing, kc, ks, kf
+                )
+                acc_v += a
+                acc_eta += e
+                acc_dv += f
+                a, e, f = filter_pair(
+                    xi - x2, vi, v2, ni, n2, om_i, o2, vort_on, h, grad_c, spacing, kc, ks, kf
+                )
+                acc_v += a
+                acc_eta += e
+                acc_dv += f
+                a, e, f = filter_pair(
+                    xi - x3, vi, v3, ni, n3, om_i, o3, vort_on, h, grad_c, spacing, kc, ks, kf
+                )
+                acc_v += a
+                acc_eta += e
+                acc_dv += f
+                k += 4 * stride
         while k < k_end:
             j = nbr[k]
             vj = v[j]
@@ -963,8 +1042,10 @@ def add_reaction(cols: Colliders, c: int, corr: wp.vec3, point: wp.vec3, m: floa
 
 
 @wp.kernel
-def project_colliders(
+def apply_delta(
     p: wp.array(dtype=wp.vec3),
+    delta: wp.array(dtype=wp.vec3),
+    sor: float,
     world: wp.array(dtype=wp.int32),
     cols: Colliders,
     mass: wp.array(dtype=float),
@@ -972,14 +1053,16 @@ def project_colliders(
     dt: float,
     push: wp.array(dtype=float),
 ):
-    """In-iteration projection out of colliders; reactions summed per body.
+    """End of a Jacobi iteration: p += sor · Δp (``delta`` cleared for the next one), then
+    projection out of colliders, reactions summed per body.
 
     The normal push-out distance is accumulated in ``push``: it is the normal impulse (times
     dt/m) that Coulomb friction in :func:`collide` scales with.
     """
     i = wp.tid()
     w = world[i]
-    pi = p[i]
+    pi = p[i] + delta[i] * sor
+    delta[i] = wp.vec3(0.0)
     for c in range(cols.world_start[w], cols.world_end[w]):
         tf = cols.pose[c]
         q = wp.transform_point(wp.transform_inverse(tf), pi)

@@ -679,15 +679,18 @@ class PBFSolver:
                     self.scorr_scale,
                     cfg.scorr_n,
                     self.scorr_wdq,
+                    self.w0,
+                    self.eps,
                 ],
-                [self.sums, self.pair],
+                [self.sums, self.pair, self.lam, self.density],
             )
-            self._launch(
-                "compute_lambda",
-                K.compute_lambda,
-                [self.sums, cfg.h, self.w0, self.eps],
-                [self.lam, self.density],
-            )
+            if self.half_lists:  # full lists compute λ in the density pass
+                self._launch(
+                    "compute_lambda",
+                    K.compute_lambda,
+                    [self.sums, cfg.h, self.w0, self.eps],
+                    [self.lam, self.density],
+                )
             self._launch(
                 "compute_delta",
                 self.pairk.compute_delta,
@@ -707,11 +710,19 @@ class PBFSolver:
                 ],
                 [self.delta],
             )
-            self._launch("apply_delta", K.apply_delta, [self.p, self.delta, cfg.sor])
             self._launch(
-                "project_colliders",
-                K.project_colliders,
-                [self.p, self.world, self.cols, self.mass, cfg.radius, cfg.dt],
+                "apply_delta",
+                K.apply_delta,
+                [
+                    self.p,
+                    self.delta,
+                    cfg.sor,
+                    self.world,
+                    self.cols,
+                    self.mass,
+                    cfg.radius,
+                    cfg.dt,
+                ],
                 [self.push],
             )
         self._launch(
