@@ -65,3 +65,25 @@ def test_cuda_bench_without_a_device_is_a_clear_error() -> None:
             capture_output=True, text=True, timeout=300,
         )  # fmt: skip
         assert out.returncode != 0 and "no CUDA device" in out.stderr, suite
+
+
+def test_git_sha_ignores_tables_but_not_code(tmp_path, monkeypatch) -> None:
+    """A suite's table written earlier in the same run does not mark the next suite's SHA
+    dirty; a changed source file does."""
+    from pourbench.bench._report import git_sha
+
+    monkeypatch.delenv("POURBENCH_GIT_SHA", raising=False)
+    monkeypatch.chdir(tmp_path)
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t"]
+    (tmp_path / "leaderboard").mkdir()
+    (tmp_path / "leaderboard" / "fluids.md").write_text("old\n")
+    (tmp_path / "code.py").write_text("x = 1\n")
+    subprocess.run(["git", "init", "-q"], check=True)
+    subprocess.run([*git, "add", "."], check=True)
+    subprocess.run([*git, "commit", "-qm", "init"], check=True)
+    (tmp_path / "leaderboard" / "fluids.md").write_text("new\n")
+    assert not git_sha().endswith("-dirty")
+    (tmp_path / "code.py").write_text("x = 2\n")
+    assert git_sha().endswith("-dirty")
+    monkeypatch.setenv("POURBENCH_GIT_SHA", "abc1234")
+    assert git_sha() == "abc1234 (copied tree)"

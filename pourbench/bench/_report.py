@@ -19,7 +19,8 @@ from typing import Any
 
 
 def git_sha() -> str:
-    """Short SHA of HEAD, with ``-dirty`` when the tree has uncommitted changes. For a copy of
+    """Short SHA of HEAD, with ``-dirty`` when the tree has uncommitted changes outside
+    ``leaderboard/`` (so ``bench all`` stamps its later suites clean). For a copy of
     the source run elsewhere (a tree shipped to a GPU machine, say), ``$POURBENCH_GIT_SHA``
     names the commit it was copied from and takes precedence."""
     if os.environ.get("POURBENCH_GIT_SHA"):
@@ -28,8 +29,8 @@ def git_sha() -> str:
         sha = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
         ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
+        dirty = subprocess.run(  # tables written by an earlier suite of this run don't count
+            ["git", "status", "--porcelain", "--untracked-files=no", "--", ".", ":!leaderboard"],
             capture_output=True,
             text=True,
             check=True,
