@@ -474,6 +474,9 @@ def pair_kernels(half: bool) -> PairKernels:
 
     @wp.kernel
     def build_neighbours(
+        p: wp.array(dtype=wp.vec3),
+        world: wp.array(dtype=wp.int32),
+        cell: wp.array(dtype=wp.vec3i),
         sorted_idx: wp.array(dtype=wp.int32),
         p_sorted: wp.array(dtype=wp.vec3),
         world_sorted: wp.array(dtype=wp.int32),
@@ -501,13 +504,25 @@ def pair_kernels(half: bool) -> PairKernels:
         col_stride = int(1)
         if wp.static(not half):
             col_stride = nbr_count.shape[0]
-        # threads in bucket order: a GPU warp's particles share cells (the same loops, no
-        # divergence between them) and their cells are neighbours (the same candidates)
-        k = wp.tid()
-        i = sorted_idx[k]
-        pi = p_sorted[k]
-        wi = world_sorted[k]
-        ci = cell_sorted[k]
+        i = int(0)
+        pi = wp.vec3(0.0)
+        wi = int(0)
+        ci = wp.vec3i(0)
+        if wp.static(half):
+            # particles in their own (Morton, see order_keys) order: a CPU thread walks space
+            # and its caches keep the cells it just scanned (bucket order is random here)
+            i = wp.tid()
+            pi = p[i]
+            wi = world[i]
+            ci = cell[i]
+        else:
+            # particles in bucket order: a GPU warp's particles share cells (the same loops, no
+            # divergence between them) and their cells are neighbours (the same candidates)
+            k = wp.tid()
+            i = sorted_idx[k]
+            pi = p_sorted[k]
+            wi = world_sorted[k]
+            ci = cell_sorted[k]
         count = int(0)
         if wp.static(half):
             # the 13 forward cells, unrolled: the tightest CPU code

@@ -863,6 +863,9 @@ class PBFSolver:
             "build_neighbours",
             self.pairk.build_neighbours,
             [
+                self.p,
+                self.world,
+                self.cell,
                 self.sorted_idx,
                 self.p_sorted,
                 self.world_sorted,
