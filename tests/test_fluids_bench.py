@@ -87,3 +87,18 @@ def test_git_sha_ignores_tables_but_not_code(tmp_path, monkeypatch) -> None:
     assert git_sha().endswith("-dirty")
     monkeypatch.setenv("POURBENCH_GIT_SHA", "abc1234")
     assert git_sha() == "abc1234 (copied tree)"
+
+
+@pytest.mark.parametrize("suite", ["planning", "teleop"])
+def test_cuda_bench_of_a_cpu_only_suite_is_a_clear_error(suite, monkeypatch) -> None:
+    """With a device present, a suite without a CUDA path refuses ``--device cuda`` instead of
+    running on the CPU and writing a ``_cuda`` table."""
+    import argparse
+
+    from pourbench import cli
+    from pourbench.fluids import solver
+
+    monkeypatch.setattr(solver, "cuda_available", lambda: True)
+    args = argparse.Namespace(suite=suite, device="cuda")
+    with pytest.raises(ValueError, match="has no CUDA path"):
+        cli._cmd_bench(args)

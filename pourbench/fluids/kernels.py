@@ -147,7 +147,8 @@ def filter_pair(
     kf: float,
 ):
     """A pair's velocity-filter terms for particle i (see ``filter_sums``): W_ij (v_j, 1),
-    (|ω_j| − |ω_i|) ∇_i W_ij, and the cohesion, curvature and friction velocity change."""
+    η's (|ω_j| − |ω_i|) ∇_i W_ij (zero without vorticity confinement; the same term for both
+    particles), and the cohesion, curvature and friction velocity change (antisymmetric)."""
     d = wp.length(r)
     wij = poly6(d * d, h)
     e = wp.vec3(0.0)
@@ -504,10 +505,6 @@ def pair_kernels(half: bool) -> PairKernels:
         col_stride = int(1)
         if wp.static(not half):
             col_stride = nbr_count.shape[0]
-        i = int(0)
-        pi = wp.vec3(0.0)
-        wi = int(0)
-        ci = wp.vec3i(0)
         if wp.static(half):
             # particles in their own (Morton, see order_keys) order: a CPU thread walks space
             # and its caches keep the cells it just scanned (bucket order is random here)
@@ -652,13 +649,12 @@ def pair_kernels(half: bool) -> PairKernels:
         while k < k_end:
             j = nbr[k]
             r = pi - p[j]
-            e = wp.vec2(0.0)
+            t = wp.vec3(0.0)
             if wp.static(half):
                 e = pair[k]
+                t = r * ((li + lam[j] + e[1]) * e[0])
             else:
-                terms = density_pair(wp.dot(r, r), h, grad_c, scorr_k, scorr_n, scorr_wdq)
-                e = wp.vec2(terms[0], terms[1])
-            t = r * ((li + lam[j] + e[1]) * e[0])
+                t = delta_term(r, li + lam[j], h, grad_c, scorr_k, scorr_n, scorr_wdq)
             dp += t
             if wp.static(half):
                 wp.atomic_sub(delta, j, t)
@@ -806,28 +802,21 @@ def pair_kernels(half: bool) -> PairKernels:
                 k += 4 * stride
         while k < k_end:
             j = nbr[k]
-            vj = v[j]
-            r = xi - x[j]
-            d = wp.length(r)
-            wij = poly6(d * d, h)
-            acc_v += wp.vec4(vj[0] * wij, vj[1] * wij, vj[2] * wij, wij)
-            if wp.static(half):
-                wp.atomic_add(vsum, j, wp.vec4(vi[0] * wij, vi[1] * wij, vi[2] * wij, wij))
+            om_j = float(0.0)
             if vort_on:
-                # η = ∇|ω| = Σ_j (|ω_j| − |ω_i|) ∇_i W_ij: the same term for both particles
-                e = spiky_grad(r, d, h, grad_c) * (wp.length(omega[j]) - om_i)
+                om_j = wp.length(omega[j])
+            a, e, f = filter_pair(
+                xi - x[j], vi, v[j], ni, normal[j], om_i, om_j, vort_on, h, grad_c, spacing,
+                kc, ks, kf,
+            )  # fmt: skip
+            acc_v += a
+            acc_dv += f
+            if vort_on:
                 acc_eta += e
                 if wp.static(half):
-                    wp.atomic_add(eta, j, e)
-            f = (normal[j] - ni) * ks  # curvature
-            if d > 1.0e-9:
-                rh = r / d
-                f -= rh * (cohesion_spline(d, h) * kc)
-                if d < spacing:
-                    dv = vj - vi
-                    f += (dv - rh * wp.dot(dv, rh)) * ((1.0 - d / spacing) * kf)
-            acc_dv += f
-            if wp.static(half):
+                    wp.atomic_add(eta, j, e)  # η's pair term is the same for both particles
+            if wp.static(half):  # j's side: W_ij v_i and the opposite dv
+                wp.atomic_add(vsum, j, wp.vec4(vi[0] * a[3], vi[1] * a[3], vi[2] * a[3], a[3]))
                 wp.atomic_sub(dv_sum, j, f)
             k += stride
         if wp.static(half):
