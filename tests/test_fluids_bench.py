@@ -7,6 +7,7 @@ import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 
@@ -39,6 +40,23 @@ def test_bench_case_lists_keep_stdout_clean() -> None:
             capture_output=True, text=True, check=True, timeout=300,
         )  # fmt: skip
         assert out.stdout == "", suite
+
+
+@pytest.mark.parametrize("n", [2_000, 16_000, 128_000, 1_024_000])
+def test_bench_block_holds_its_particles_in_a_shallow_column(n: int) -> None:
+    """Every row's block holds about its particle count (within 7 %: 16k is 15,000), at most
+    25 cm tall (the 2k and 16k blocks keep height 2a), inside its tank."""
+    from pourbench.bench.fluids import BLOCK_MAX_LAYERS, _block
+
+    d = 0.005
+    pts, tank = _block(n, d)
+    assert len(pts) == pytest.approx(n, rel=0.07)
+    height = np.ptp(pts[:, 2]) + d
+    assert height <= BLOCK_MAX_LAYERS * d + 1e-9
+    width = np.ptp(pts[:, 0]) + d
+    if n <= 16_000:
+        assert height == pytest.approx(2.0 * width)
+    assert np.all(tank.sdf(pts) >= 0.5 * d - 1e-9)  # inside the cavity, half a spacing clear
 
 
 def test_device_choice_selects_rows_and_report() -> None:

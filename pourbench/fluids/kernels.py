@@ -229,6 +229,9 @@ def spread10(v: wp.uint32) -> wp.uint32:
     return x
 
 
+WORLD_MIX = wp.constant(wp.uint32(2654435761))  # Knuth's multiplicative hash, 2^32 / φ
+
+
 @wp.func
 def morton_bucket(w: int, c: wp.vec3i, mask: int) -> int:
     """Bucket of cell ``c`` of world ``w`` for full lists (the GPU's): the low bits of the
@@ -242,7 +245,7 @@ def morton_bucket(w: int, c: wp.vec3i, mask: int) -> int:
         | (spread10(wp.uint32(c[1])) << wp.uint32(1))
         | (spread10(wp.uint32(c[2])) << wp.uint32(2))
     )
-    return int((m + wp.uint32(w) * wp.uint32(2654435761)) & wp.uint32(mask))
+    return int((m + wp.uint32(w) * WORLD_MIX) & wp.uint32(mask))
 
 
 @wp.func
