@@ -211,8 +211,9 @@ def run(args: argparse.Namespace) -> int:
     checks, checks_md = ({}, "") if args.quick else validation(checks_device)
     body = "\n".join(
         [
-            "Dam-break block in a tank, 4 Jacobi density iterations, dt = 1/240 s, spacing "
-            "5 mm (h = 1 cm). `particle_steps_per_s` = particles × steps / wall time of "
+            "Dam-break block in a tank (width a, height 2a, at most 25 cm tall: larger blocks "
+            "grow wider), 4 Jacobi density iterations, dt = 1/240 s, spacing 5 mm "
+            "(h = 1 cm). `particle_steps_per_s` = particles × steps / wall time of "
             "`PBFSolver.step` (median step; `best_…` from the fastest step). The baseline is "
             "an all-cells-candidates PBF "
             "(`pourbench/bench/fluids_baseline.py`: hash-grid query in every pass, no "
