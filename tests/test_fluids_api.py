@@ -217,6 +217,8 @@ def test_unknown_liquid_and_bad_profile_values() -> None:
         ({"spacing": float("nan")}, "spacing"),
         ({"dt": -1.0}, "dt"),
         ({"iterations": 0}, "iterations"),
+        ({"sleep_threshold": -0.01}, "sleep_threshold"),
+        ({"sleep_threshold": float("nan")}, "sleep_threshold"),
     ],
 )
 def test_config_rejects_bad_values(kwargs, name) -> None:

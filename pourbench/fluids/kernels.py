@@ -1192,15 +1192,22 @@ def update_velocity(
     contacts: wp.array(dtype=wp.int32),
     world: wp.array(dtype=wp.int32),
     dissipation: wp.array(dtype=float),
+    sleep: float,
     dt: float,
     v: wp.array(dtype=wp.vec3),
     x: wp.array(dtype=wp.vec3),
 ):
+    """v = (x* − x)/dt, damped by shape contacts (``dissipation``), then x = x*; a particle
+    slower than ``sleep`` (FleX's sleepThreshold, 0: off) stays where it started, at rest."""
     i = wp.tid()
     vi = (p[i] - x_prev[i]) / dt
     vi = vi / (1.0 + dissipation[world[i]] * float(contacts[i]) * dt)
-    v[i] = vi
-    x[i] = p[i]
+    if sleep > 0.0 and wp.length(vi) < sleep:
+        v[i] = wp.vec3(0.0)
+        x[i] = x_prev[i]
+    else:
+        v[i] = vi
+        x[i] = p[i]
 
 
 @wp.kernel

@@ -54,12 +54,14 @@ def rest_in_cup(
     windows: Sequence[tuple[float, float]] = (REST_WINDOW_S, REST_LATE_WINDOW_S),
     device: str = "cpu",
     samples: int = 12,
+    sleep_threshold: float = 0.0,
 ) -> tuple[RestResult, ...]:
     """Fill a cup (radius 4 cm) with water at rest density and let it settle; in each of
     ``windows`` (s, in time order, one run for all) sample speeds, kernel density and a
     probe's mass per volume ``samples`` times. One result per window."""
     shape = cup(0.04, 0.08)
-    s = PBFSolver(len(masses_g), SolverConfig(device=device))
+    cfg = SolverConfig(device=device, sleep_threshold=sleep_threshold)
+    s = PBFSolver(len(masses_g), cfg)
     for w, mass in enumerate(masses_g):
         s.add_collider(w, "plane", [0.0])
         s.fill(w, s.add_container(w, shape), mass, "water")
@@ -117,6 +119,7 @@ def half_pour_times(
     seconds: float = 4.0,
     spacing: float = 0.006,
     device: str = "cpu",
+    sleep_threshold: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """All liquids poured with the same tilt, one world each in one solver.
 
@@ -125,7 +128,7 @@ def half_pour_times(
         step; inf if never), and the grams left in the source after ``seconds``.
     """
     n = len(liquids)
-    cfg = SolverConfig(spacing=spacing, device=device)
+    cfg = SolverConfig(spacing=spacing, device=device, sleep_threshold=sleep_threshold)
     scene = two_cup_scene(list(liquids), 200.0, num_worlds=n, config=cfg)
     s = scene.solver
     total = np.array([scene.metrics(w).total_g for w in range(n)])
