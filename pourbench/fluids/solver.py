@@ -79,9 +79,9 @@ class SolverConfig:
             with Δq = scorr_dq × h.
         max_neighbours: capacity of a particle's neighbour list (full lists: all its
             neighbours; half lists: the pairs it owns). At rest density a particle has about
-            33 neighbours within h; at the foot of a collapsing 25 cm column (the bench's dam
-            break at 128k particles) up to 71, so 64 was too few there; pairs beyond the
-            capacity are dropped with a warning. Memory only: 96 costs no time on the CPU.
+            33 neighbours within h, at the foot of a collapsing 25 cm column (the bench's dam
+            break at 128k particles) up to 71; 96 leaves headroom. Pairs beyond the capacity
+            are dropped with a warning. Memory only: 96 costs no time on the CPU.
         pair_lists: ``"half"`` (each pair listed once, its terms added to both particles:
             half the work, the CPU default) or ``"full"`` (every particle lists all its
             neighbours and sums its own side: no atomics between threads, so CUDA runs are
