@@ -335,7 +335,8 @@ def test_morton_buckets_keep_locality_without_aliasing_wide_scenes() -> None:
 
     def buckets(cells: np.ndarray, mask: int) -> np.ndarray:
         out = wp.zeros(len(cells), dtype=int, device="cpu")
-        wp.launch(buckets_of, len(cells), [wp.array(cells, dtype=wp.vec3i), mask], [out])
+        cells = wp.array(cells, dtype=wp.vec3i, device="cpu")
+        wp.launch(buckets_of, len(out), [cells, mask], [out], device="cpu")
         return out.numpy()
 
     mask = (1 << 21) - 1  # the table of 1M particles (2^21 buckets)
