@@ -96,7 +96,7 @@ class SolverConfig:
         cuda_graph: on a CUDA device, record a step's ~27 launches once as a CUDA graph and
             replay it (re-recorded when the scene changes); the re-sort and the list-capacity
             check run outside it on their steps. Same kernels and order, so the same
-            results; no effect on the CPU.
+            results; no effect on the CPU, or on a device without Warp's memory pool.
         viscosity_rate: κ of the XSPH mapping (dimensionless, per unit FleX viscosity): each
             step of ``calibration_dt`` relaxes a velocity toward its neighbours' kernel mean by
             a = κν / (1 + κν); other steps use 1 − (1 − a)^(dt / calibration_dt), the same
@@ -671,7 +671,8 @@ class PBFSolver:
         if n == 0:
             self._advance_clock()
             return
-        if self.device.is_cuda and cfg.cuda_graph:
+        # the step's sorts allocate scratch memory, which a graph can hold only from a pool
+        if self.device.is_cuda and cfg.cuda_graph and wp.is_mempool_enabled(self.device):
             if self._graph is None:
                 with wp.ScopedCapture(device=self.device) as capture:
                     self._step_kernels()
