@@ -979,7 +979,7 @@ class PBFSolver:
         count = self.nbr_count.numpy()
         if not self.half_lists:
             return count.copy()
-        listed = np.concatenate([np.zeros(0, np.int32), *self.neighbour_lists()])
+        listed = self.nbr.numpy()[: int(count.sum())]  # half lists are packed back to back
         return (count + np.bincount(listed, minlength=self.n)).astype(np.int32)
 
     def neighbour_lists(self) -> list[np.ndarray]:
