@@ -562,6 +562,7 @@ class PBFSolver:
         self._upload_poses(prev_too=True)
         self._cmds: dict[str, wp.Launch] = {}
         self._graph: wp.Graph | None = None  # the recorded step, replayed on CUDA
+        self._moved = False  # x_prev holds the start of a step whose end is x
         self._dirty = False
 
     def _upload_poses(self, prev_too: bool = False) -> None:
@@ -680,6 +681,7 @@ class PBFSolver:
             wp.capture_launch(self._graph)
         else:
             self._step_kernels()
+        self._moved = True
         self._advance_clock()
 
     def _step_kernels(self) -> None:
@@ -950,8 +952,21 @@ class PBFSolver:
         return self._x.copy() if self._dirty else self.x.numpy().copy()
 
     def velocities(self) -> np.ndarray:
-        """All particle velocities (n, 3), m/s."""
-        return self._v.copy() if self._dirty else self.v.numpy().copy()
+        """All particle velocities (n, 3), m/s: each particle's displacement over the last step
+        divided by ``dt``, the motion an observer sees.
+
+        The velocity the next step starts from also carries the impulses computed at the end
+        of this one (XSPH viscosity, vorticity confinement, cohesion, surface tension, particle
+        friction), which move particles only in the next step, where the density constraint
+        balances them: a settled liquid's cohesion impulses alone read about 2 mm/s on
+        particles that move 0.3 mm/s (docs/rest.md). Before the first step after a scene
+        change, the velocities the particles carry into it (as given to :meth:`add_particles`).
+        """
+        if self._dirty:
+            return self._v.copy()
+        if not self._moved:
+            return self.v.numpy().copy()
+        return (self.x.numpy() - self.x_prev.numpy()) / np.float32(self.config.dt)
 
     def worlds(self) -> np.ndarray:
         """World index of every particle."""
