@@ -542,6 +542,40 @@ def test_bounding_spheres_skip_only_colliders_out_of_reach() -> None:
     np.testing.assert_array_equal(run(True), run(False))
 
 
+def test_collider_sdfs_are_one_lipschitz() -> None:
+    """The collider passes skip a particle's SDFs while its clearance (least distance to a
+    collider at the step's predicted position, less the moves since) stays positive; that is
+    exact only if no SDF grows faster than distance: |s(a) − s(b)| ≤ |a − b| for every kind."""
+    s = PBFSolver(1)
+    ids = [s.add_collider(0, "plane", [0.0])]
+    for kind, params in [
+        ("box", [0.03, 0.02, 0.01]),
+        ("sphere", [0.02]),
+        ("capsule", [0.01, 0.02]),
+        ("cylinder", [0.02, 0.015]),
+    ]:
+        ids.append(s.add_collider(0, kind, params))
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    faces = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+             [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]  # fmt: skip
+    ids.append(s.add_collider(0, "mesh", [], mesh=(corners * [0.03, 0.02, 0.01], np.array(faces))))
+    for shape in (
+        cup(0.04, 0.08),
+        bowl(0.07, 0.05),
+        bottle(0.04, 0.1, 0.012, 0.04),
+        BoxShell(0.05, 0.03, 0.04, 0.004),
+        BoxShell(0.05, 0.03, 0.04, 0.004, closed=True),
+    ):
+        ids.append(s.add_container(0, shape))
+    rng = np.random.default_rng(1)
+    a = rng.uniform(-0.09, 0.12, (20000, 3))
+    b = a + rng.normal(0.0, 0.01, a.shape)
+    step = np.linalg.norm(b - a, axis=1)
+    for c in ids:
+        rise = np.abs(s.collider_sdf(c, b)[:, 0] - s.collider_sdf(c, a)[:, 0])
+        assert np.all(rise <= step + 1e-6), (s.colliders[c].kind, float((rise - step).max()))
+
+
 def test_step_fractions_keep_their_rate_per_second() -> None:
     """XSPH viscosity, particle friction and adhesion act as fractions per step, calibrated
     at ``calibration_dt``; at other steps they are rescaled so that two half-length steps

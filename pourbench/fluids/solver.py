@@ -477,6 +477,7 @@ class PBFSolver:
         self.vsum = wp.zeros(n, dtype=wp.vec4, device=dev)
         self.dv_sum = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.push = wp.zeros(n, dtype=float, device=dev)
+        self.clear = wp.zeros(n, dtype=float, device=dev)  # collider clearance (K.clearance)
         self.density = wp.zeros(n, dtype=float, device=dev)
         self.contacts = wp.zeros(n, dtype=wp.int32, device=dev)
         self.order_keys = wp.zeros(2 * max(n, 1), dtype=wp.int64, device=dev)
@@ -701,8 +702,10 @@ class PBFSolver:
                 P["damping"],
                 wp.vec3(*cfg.gravity),
                 cfg.dt,
+                self.cols,
+                cfg.radius,
             ],
-            [self.x_prev, self.p],
+            [self.x_prev, self.p, self.clear],
         )
         self._build_neighbours()
         for _ in range(cfg.iterations):
@@ -764,7 +767,7 @@ class PBFSolver:
                     cfg.radius,
                     cfg.dt,
                 ],
-                [self.push],
+                [self.push, self.clear],
             )
         self._launch(
             "collide",
@@ -782,6 +785,7 @@ class PBFSolver:
                 0.5 * cfg.spacing,
                 P["adhesion_frac"],
                 cfg.dt,
+                self.clear,
             ],
             [self.push, self.contacts],
         )
