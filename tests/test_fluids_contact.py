@@ -119,3 +119,32 @@ def test_dissipation_damps_motion_per_shape_contact() -> None:
     x = solver.positions()
     np.testing.assert_array_equal(x[falling[0]], x[falling[1]])
     assert speed[falling[0]] == pytest.approx(G * STEPS * CFG.dt, rel=1e-3)
+
+
+def test_friction_acts_on_motion_relative_to_a_moving_collider() -> None:
+    """A particle on a belt (a box) that starts moving at 0.5 m/s: kinetic friction
+    accelerates it at μ_d g while it slips (speed μ_d g t, within 0.1 %; measured 1e-5), then static
+    friction carries it at the belt's speed; without friction the belt slides under it and
+    it stays where it was."""
+    belt_speed = 0.5
+    cases = [(0.9, 0.9), (0.3, 0.1), (0.0, 0.0)]  # (static μ, dynamic μ)
+    solver = PBFSolver(len(cases), CFG)
+    for w, (mu_s, mu_d) in enumerate(cases):
+        solver.set_liquid(w, bare(staticFriction=mu_s, dynamicFriction=mu_d))
+        solver.add_collider(w, "box", [0.5, 0.5, 0.05], pose=[0.0, 0.0, -0.05, 0, 0, 0, 1.0])
+        solver.add_particles(w, np.array([[0.0, 0.0, CFG.radius]]))
+    solver.step(1)  # resting on the belt
+    worlds = list(range(len(cases)))
+    slipping = {12: 0, 60: 1}  # a step at which each rough case still slips
+    for k in range(1, STEPS + 1):
+        pose = [belt_speed * k * CFG.dt, 0.0, -0.05, 0.0, 0.0, 0.0, 1.0]
+        solver.set_collider_poses(worlds, np.array([pose] * len(cases)))
+        solver.step(1)
+        if k in slipping:
+            w = slipping[k]
+            vx = solver.velocities()[w, 0]
+            assert vx == pytest.approx(cases[w][1] * G * k * CFG.dt, rel=1e-3), cases[w]
+    v = solver.velocities()
+    np.testing.assert_allclose(v[:2, 0], belt_speed, rtol=1e-4)
+    assert v[2, 0] == 0.0 and solver.positions()[2, 0] == 0.0
+    assert np.linalg.norm(v[2]) < 1e-5  # (float rounding of the belt's height: ~3e-7 m/s)
