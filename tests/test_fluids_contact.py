@@ -148,3 +148,33 @@ def test_friction_acts_on_motion_relative_to_a_moving_collider() -> None:
     np.testing.assert_allclose(v[:2, 0], belt_speed, rtol=1e-4)
     assert v[2, 0] == 0.0 and solver.positions()[2, 0] == 0.0
     assert np.linalg.norm(v[2]) < 1e-5  # (float rounding of the belt's height: ~3e-7 m/s)
+
+
+@pytest.mark.parametrize("mu", [0.5, 0.1])
+def test_a_particles_reaction_on_a_body_is_its_contact_force(mu: float) -> None:
+    """The reaction a resting or sliding particle puts on a 20°-tilted box body: held by
+    friction (μ = 0.5 > tan 20°) it is its weight, −m g ẑ; sliding (μ = 0.1) it is the
+    normal force m g cos θ into the surface plus kinetic friction μ m g cos θ downhill. The
+    torque about the body's centre of mass is r × F. Within 0.1 % of m g."""
+    th = math.radians(20.0)
+    com = np.array([0.0, 0.0, -0.05])
+    solver = PBFSolver(1, CFG)
+    solver.set_liquid(0, bare(staticFriction=mu, dynamicFriction=mu))
+    body = solver.new_body_slot()
+    quat = [math.sin(th / 2), 0.0, 0.0, math.cos(th / 2)]
+    box = solver.add_collider(0, "box", [0.2, 0.2, 0.05], pose=[*com, *quat], body=body)
+    solver.set_collider_poses([box], np.array([[*com, *quat]]), com=com[None])
+    normal = np.array([0.0, -math.sin(th), math.cos(th)])
+    uphill = np.array([0.0, math.cos(th), math.sin(th)])
+    start = com + 0.05 * normal + np.array([0.1, 0.0, 0.0]) + 0.05 * uphill
+    solver.add_particles(0, (start + normal * CFG.radius)[None])
+    solver.step(60)
+    force, torque = solver.body_wrenches()
+    mg = solver.particle_mass(0) * G
+    if math.tan(th) < mu:
+        expected = np.array([0.0, 0.0, -mg])
+    else:
+        expected = mg * math.cos(th) * (-normal - mu * uphill)
+    np.testing.assert_allclose(force[body], expected, atol=1e-3 * mg)
+    lever = solver.positions()[0] - com
+    np.testing.assert_allclose(torque[body], np.cross(lever, expected), atol=1e-3 * mg * 0.2)
