@@ -1,6 +1,7 @@
-"""Particle–shape contact laws, checked on lone particles against closed-form motion:
-Coulomb friction on an incline, FleX's ``dissipation`` (damping per shape contact), and
-contact far from a rotated collider's origin (no drift from frame round trips)."""
+"""Contact laws and FleX's drag terms, checked on lone particles against closed-form motion:
+Coulomb friction on an incline and on a moving belt, the reaction on a body (contact force
+and its torque), FleX's ``dissipation`` (damping per shape contact) and ``damping`` (drag
+rate), and contact far from a rotated collider's origin (no drift from frame round trips)."""
 
 from __future__ import annotations
 
@@ -178,3 +179,19 @@ def test_a_particles_reaction_on_a_body_is_its_contact_force(mu: float) -> None:
     np.testing.assert_allclose(force[body], expected, atol=1e-3 * mg)
     lever = solver.positions()[0] - com
     np.testing.assert_allclose(torque[body], np.cross(lever, expected), atol=1e-3 * mg * 0.2)
+
+
+def test_damping_is_a_drag_rate() -> None:
+    """FleX's ``damping`` d divides the velocity by 1 + d dt every step, gravity's g dt
+    included, so a particle falling freely approaches the terminal speed g / d:
+    v_n = (g / d)(1 − r^n), r = 1 / (1 + d dt), within 0.1 % after 1 s for d = 0.5 and 2 /s."""
+    rates = (0.5, 2.0)
+    solver = PBFSolver(len(rates), CFG)
+    for w, d in enumerate(rates):
+        solver.set_liquid(w, bare(damping=d))
+        solver.add_particles(w, np.array([[0.0, 0.0, 0.0]]))
+    solver.step(STEPS)
+    v = solver.velocities()
+    for w, d in enumerate(rates):
+        r = 1.0 / (1.0 + d * CFG.dt)
+        assert -v[w, 2] == pytest.approx(G / d * (1.0 - r**STEPS), rel=1e-3), f"damping {d}"
