@@ -30,6 +30,7 @@ from pourbench.fluids.validation import (
     REST_WINDOW_S,
     VISCOUS_ORDER,
     dam_break_fronts,
+    floating_box,
     half_pour_times,
     rest_in_cup,
     scale_reading,
@@ -149,7 +150,8 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
     """Run the physical validation experiments on ``device``; their numbers and a markdown
     table."""
     print(
-        f"fluids: physical validation on {device} (rest, weight, viscous pours, dam break)…",
+        f"fluids: physical validation on {device} (rest, weight, floating box, viscous pours,"
+        " dam break)…",
         file=sys.stderr,
     )
     rest, late = rest_in_cup(windows=(REST_WINDOW_S, REST_LATE_WINDOW_S), device=device)
@@ -157,6 +159,7 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
     fills = " / ".join(f"{m:g}" for m in REST_FILLS_G)
     t0, t1 = REST_WINDOW_S
     w50, w200 = scale_reading(50.0, device=device), scale_reading(200.0, device=device)
+    afloat = floating_box(device=device)
     t_half, left = half_pour_times(device=device)
     fronts = dam_break_fronts(device=device)
     out: dict[str, Any] = {
@@ -172,6 +175,10 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
         "rest_asleep_density_error": asleep.density_error,
         "scale_50g_reads_g": w50,
         "scale_200g_reads_g": w200,
+        "float_archimedes_draft_m": afloat.archimedes,
+        "float_draft_m": afloat.draft,
+        "float_column_difference_m": afloat.column_difference,
+        "float_lift_over_weight": afloat.lift,
         "half_pour_time_s": dict(zip(VISCOUS_ORDER, t_half.tolist(), strict=True)),
         "residue_after_4s_g": dict(zip(VISCOUS_ORDER, left.tolist(), strict=True)),
         "dam_break_Z": {str(k): v for k, v in fronts.items()},
@@ -194,6 +201,11 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
         " | ≤ 0.02 / ≤ 0.02 |",
         f"| force sensor, 50 g settled (g) | {w50:.2f} | 50 ± 1 |",
         f"| force sensor, 200 g settled (g) | {w200:.2f} | 200 ± 4 |",
+        f"| floating 500 kg/m³ box: liquid's lift / weight | {afloat.lift:.3f} | 1 |",
+        f"| floating box: water column beside it − under it (mm) | "
+        f"{afloat.column_difference * 1e3:.1f} | {afloat.archimedes * 1e3:.1f} (Archimedes) |",
+        f"| floating box: draft below the water level (mm) | {afloat.draft * 1e3:.1f} | "
+        f"{afloat.archimedes * 1e3:.1f} (Archimedes; deeper: liquid packs denser at walls) |",
     ]
     for liq, t, g in zip(VISCOUS_ORDER, t_half, left, strict=True):
         lines.append(

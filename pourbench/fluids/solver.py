@@ -21,8 +21,9 @@ et al. 2013 forms); particle friction and adhesion are likewise fractions per ca
 adhesion pulls particles within ``adhesion_range`` of a surface back onto it and adds grip
 to the wall friction; damping is a drag rate (1/s); dissipation damps velocity per shape
 contact (1/s per contact: FleX damps "based on how many particle contacts it has", and were
-every liquid neighbour a contact, Table 3.5's dish soap, 5, could not pour). FleX's ``buoyancy`` scales gravity for gases in FleX; it is kept in
-the profiles for provenance but not applied, so that a container's weight is the liquid's.
+every liquid neighbour a contact, Table 3.5's dish soap, 5, could not pour). FleX's
+``buoyancy`` scales gravity for gases in FleX; it is kept in the profiles for provenance
+but not applied, so that a container's weight is the liquid's.
 """
 
 from __future__ import annotations

@@ -114,6 +114,73 @@ def scale_reading(
     return float(np.mean(readings))
 
 
+@dataclass(frozen=True)
+class FloatResult:
+    """A box floating in a tank of water (:func:`floating_box`), averaged over the last
+    0.5 s. Depths are in metres of water at 1000 kg/m³."""
+
+    archimedes: float  # draft at which the displaced water weighs what the box does
+    draft: float  # the box bottom's depth below the water level (top layer + half a spacing)
+    column_difference: float  # water column beside the box minus the column under it
+    lift: float  # the liquid's vertical force on the box over the box's weight
+
+
+def floating_box(
+    body_density: float = 500.0, seconds: float = 1.5, device: str = "cpu"
+) -> FloatResult:
+    """Drop a 6 × 6 × 4 cm box of ``body_density`` (kg/m³, on a MuJoCo free joint) into a
+    10 × 10 cm tank holding 500 g of water and let it float: two-way coupling, the liquid's
+    reaction in ``xfrc_applied`` against MuJoCo's gravity.
+
+    In hydrostatic equilibrium the pressure at the tank floor is the same under the box and
+    beside it, so the water column beside it exceeds the column under it by the box's mass
+    over its footprint (``column_difference`` = ``archimedes``), a measure of masses that
+    the liquid's compression does not change. ``draft`` is geometric: where the liquid packs
+    denser than at rest, the box sits deeper than ``archimedes``.
+    """
+    import mujoco
+
+    from pourbench.fluids.coupling import MujocoCoupling
+
+    half, half_h, water_g = 0.03, 0.02, 500.0
+    mass = body_density * (2 * half) ** 2 * 2 * half_h
+    cfg = SolverConfig(device=device)
+    xml = f"""<mujoco><option timestep="{cfg.dt!r}"/><worldbody>
+      <body name="float" pos="0 0 0.09"><freejoint/>
+        <geom name="hull" type="box" size="{half} {half} {half_h}" mass="{mass!r}"/>
+      </body></worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    solver = PBFSolver(1, cfg)
+    tank = BoxShell(0.05, 0.05, 0.1, 0.01)
+    solver.fill(0, solver.add_container(0, tank), water_g, "water")
+    coupling = MujocoCoupling(solver, model, [data])
+    coupling.add_geoms(["hull"])
+    per_particle = solver.particle_mass(0) / 1000.0  # m³ of water at 1000 kg/m³
+    drafts, columns, lifts = [], [], []
+    while solver.time < seconds - 1e-9:
+        coupling.step()
+        if solver.time > seconds - 0.5 and solver.steps % 6 == 0:
+            x = solver.positions()
+            ax, ay = np.abs(x[:, 0]), np.abs(x[:, 1])
+            # columns 5 mm clear of the box's sides: under it, and the bands beside it
+            under = (ax < half - 0.005) & (ay < half - 0.005)
+            beside = (ax > half + 0.005) & (ax < 0.045) & (ay < 0.045)
+            column_under = under.sum() * per_particle / (2 * (half - 0.005)) ** 2
+            column_beside = beside.sum() * per_particle / (2 * (0.045 - half - 0.005) * 0.09)
+            columns.append(column_beside - column_under)
+            outside = (ax > half) | (ay > half)
+            level = np.quantile(x[outside, 2], 0.99) + cfg.spacing / 2
+            drafts.append(level - (data.qpos[2] - half_h))
+            lifts.append(data.xfrc_applied[1, 2] / (mass * GRAVITY))
+    return FloatResult(
+        archimedes=body_density / 1000.0 * 2 * half_h,
+        draft=float(np.mean(drafts)),
+        column_difference=float(np.mean(columns)),
+        lift=float(np.mean(lifts)),
+    )
+
+
 def half_pour_times(
     liquids: Sequence[str] = VISCOUS_ORDER,
     seconds: float = 4.0,
