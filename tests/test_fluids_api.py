@@ -286,7 +286,7 @@ def test_half_neighbour_lists_hold_every_pair_once() -> None:
     h = s.config.h
     truth = {(i, j) for i, j in cKDTree(p).query_pairs(h) if world[i] == world[j]}
     # a filled lattice puts many pairs at exactly h, where float rounding decides (W = 0 there)
-    differ = np.array(sorted(set(listed) ^ truth)).reshape(-1, 2)
+    differ = np.array(sorted(set(listed) ^ truth), dtype=int).reshape(-1, 2)
     gap = np.linalg.norm(p[differ[:, 0]] - p[differ[:, 1]], axis=1)
     assert np.all(np.abs(gap - h) < 1e-6 * h), gap
     assert len(truth) > 10_000
@@ -312,7 +312,7 @@ def test_full_neighbour_lists_hold_every_neighbour() -> None:
     world = s.worlds()
     truth = {(i, j) for i, j in cKDTree(p).query_pairs(s.config.h) if world[i] == world[j]}
     truth |= {(j, i) for i, j in truth}
-    differ = np.array(sorted(listed ^ truth)).reshape(-1, 2)
+    differ = np.array(sorted(listed ^ truth), dtype=int).reshape(-1, 2)
     gap = np.linalg.norm(p[differ[:, 0]] - p[differ[:, 1]], axis=1)
     assert np.all(np.abs(gap - s.config.h) < 1e-6 * s.config.h), gap  # float ties at r = h
     assert len(truth) > 10_000
