@@ -782,30 +782,22 @@ def pair_kernels(half: bool) -> PairKernels:
                 if vort_on:
                     o0, o1 = wp.length(omega[j0]), wp.length(omega[j1])
                     o2, o3 = wp.length(omega[j2]), wp.length(omega[j3])
-                a, e, f = filter_pair(
+                a0, e0, f0 = filter_pair(
                     xi - x0, vi, v0, ni, n0, om_i, o0, vort_on, h, grad_c, spacing, kc, ks, kf
                 )
-                acc_v += a
-                acc_eta += e
-                acc_dv += f
-                a, e, f = filter_pair(
+                a1, e1, f1 = filter_pair(
                     xi - x1, vi, v1, ni, n1, om_i, o1, vort_on, h, grad_c, spacing, kc, ks, kf
                 )
-                acc_v += a
-                acc_eta += e
-                acc_dv += f
-                a, e, f = filter_pair(
+                a2, e2, f2 = filter_pair(
                     xi - x2, vi, v2, ni, n2, om_i, o2, vort_on, h, grad_c, spacing, kc, ks, kf
                 )
-                acc_v += a
-                acc_eta += e
-                acc_dv += f
-                a, e, f = filter_pair(
+                a3, e3, f3 = filter_pair(
                     xi - x3, vi, v3, ni, n3, om_i, o3, vort_on, h, grad_c, spacing, kc, ks, kf
                 )
-                acc_v += a
-                acc_eta += e
-                acc_dv += f
+                # left to right: the same order of additions as one neighbour at a time
+                acc_v = acc_v + a0 + a1 + a2 + a3
+                acc_eta = acc_eta + e0 + e1 + e2 + e3
+                acc_dv = acc_dv + f0 + f1 + f2 + f3
                 k += 4 * stride
         while k < k_end:
             j = nbr[k]

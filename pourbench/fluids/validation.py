@@ -142,7 +142,7 @@ def floating_box(
 
     from pourbench.fluids.coupling import MujocoCoupling
 
-    half, half_h, water_g = 0.03, 0.02, 500.0
+    half, half_h, water_g, margin = 0.03, 0.02, 500.0, 0.005
     mass = body_density * (2 * half) ** 2 * 2 * half_h
     cfg = SolverConfig(device=device)
     xml = f"""<mujoco><option timestep="{cfg.dt!r}"/><worldbody>
@@ -163,11 +163,13 @@ def floating_box(
         if solver.time > seconds - 0.5 and solver.steps % 6 == 0:
             x = solver.positions()
             ax, ay = np.abs(x[:, 0]), np.abs(x[:, 1])
-            # columns 5 mm clear of the box's sides: under it, and the bands beside it
-            under = (ax < half - 0.005) & (ay < half - 0.005)
-            beside = (ax > half + 0.005) & (ax < 0.045) & (ay < 0.045)
-            column_under = under.sum() * per_particle / (2 * (half - 0.005)) ** 2
-            column_beside = beside.sum() * per_particle / (2 * (0.045 - half - 0.005) * 0.09)
+            # columns 5 mm clear of the box's and the tank's sides: under the box, and the
+            # two bands beside it (x on either side, along y)
+            inner, outer = half - margin, tank.half_x - margin
+            under = (ax < inner) & (ay < inner)
+            beside = (ax > half + margin) & (ax < outer) & (ay < outer)
+            column_under = under.sum() * per_particle / (2 * inner) ** 2
+            column_beside = beside.sum() * per_particle / (2 * (outer - half - margin) * 2 * outer)
             columns.append(column_beside - column_under)
             outside = (ax > half) | (ay > half)
             level = np.quantile(x[outside, 2], 0.99) + cfg.spacing / 2
