@@ -15,7 +15,12 @@ above the receiving container, then
   measured weight is there. If the stream stops short of it (no rise of the smoothed weight
   for ``stall_time``), or the return was triggered by a noisy sample (the smoothed weight
   stays ``short_margin_g`` below), return at full rate to the largest tilt reached so far
-  and pour again.
+  and search on from there at ``search_rate``. While it searches, neither the predicted
+  weight nor a single noisy sample stops it: only a rise of the smoothed weight (the stream
+  again) re-arms the hold, and only the smoothed weight at target − tolerance turns it
+  back.
+* the flow onset counts only once the container has started to rotate, so sensor noise
+  during the approach cannot end the approach early.
 
 Works on batches: ``act(obs)`` takes (n, 12) or (12,) observations.
 """
@@ -87,6 +92,7 @@ class PDPourer:
         self.catchup = np.zeros(self.n, bool)
         self.back = np.zeros(self.n, bool)
         self.short = np.zeros(self.n)
+        self.searching = np.zeros(self.n, bool)
 
     def reset(self, mask: np.ndarray | None = None) -> None:
         """Forget the history of every world (or of those in ``mask``)."""
@@ -102,6 +108,7 @@ class PDPourer:
         self.catchup[m] = False
         self.back[m] = False
         self.short[m] = 0.0
+        self.searching[m] = False
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         """Actions (n, 2) ``(ω, r)`` for observations (n, 12) (or (2,) for (12,))."""
@@ -117,28 +124,34 @@ class PDPourer:
         self.last_w, self.flow = w.copy(), q
         self.smooth_w += c.weight_smoothing * (w - self.smooth_w)
         predicted = w + np.maximum(q, 0.0) * c.lead
-        self.onset |= w >= c.detect_g
-        self.hold |= self.onset & (predicted >= target)
+        # the handler rotates only above the receiving container: before that, a weight is noise
+        self.onset |= (w >= c.detect_g) & (tilt > 0.0)
+        rising = self.smooth_w > self.best_w + c.stall_gain_g
+        self.best_w = np.where(rising, self.smooth_w, self.best_w)
+        self.searching &= ~rising
+        there = target - c.tolerance_g
+        self.hold |= self.onset & ~self.searching & (predicted >= target)
         # turn back once the measured weight reaches target − tolerance (when Algorithm 4
-        # allows it); undo that if the smoothed weight then stays clearly short of it
-        self.back |= self.onset & (w >= target - c.tolerance_g)
-        short = self.back & (self.smooth_w < target - c.tolerance_g - c.short_margin_g)
+        # allows it; while searching, once the smoothed weight does); undo that if the
+        # smoothed weight then stays clearly short of it
+        self.back |= self.onset & (w >= there) & (~self.searching | (self.smooth_w >= there))
+        short = self.back & (self.smooth_w < there - c.short_margin_g)
         self.short = np.where(short, self.short + 1, 0)
         undo = self.short * c.control_dt >= c.stall_time
         self.back &= ~undo
         self.short = np.where(undo, 0, self.short)
         back = self.back
-        rising = self.smooth_w > self.best_w + c.stall_gain_g
-        self.best_w = np.where(rising, self.smooth_w, self.best_w)
         self.stalled = np.where(self.hold & ~back & ~rising, self.stalled + 1, 0)
         resume = (self.stalled * c.control_dt >= c.stall_time) | undo
         self.hold &= ~resume
         self.stalled = np.where(resume, 0, self.stalled)
+        self.searching |= resume
         self.max_tilt = np.maximum(self.max_tilt, tilt)
         self.catchup = (self.catchup | resume) & (tilt < self.max_tilt - 0.05) & ~self.hold
         q_star = np.clip(c.gain * (target - predicted), c.min_flow, c.max_flow)
         pour = np.clip(c.kp * (q_star - q) - c.kd * dq, 0.0, c.search_rate)
         omega = np.where(tilt < c.fast_tilt, 1.0, np.where(self.onset, pour, c.search_rate))
+        omega = np.where(self.searching, c.search_rate, omega)
         omega = np.where(self.catchup, 1.0, omega)
         omega = np.where(self.hold, 0.0, omega)
         omega = np.where(back, -1.0, omega)
