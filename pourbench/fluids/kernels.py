@@ -358,11 +358,38 @@ def gather_state(
 
 
 @wp.func
-def density_and_lambda(a: vec5, h: float, w0: float, eps: float) -> wp.vec2:
+def wall_sum(d: float, h: float, coef: float) -> wp.vec2:
+    """Kernel sum (spiky, without its constant) of the rest liquid a wall at distance ``d``
+    replaces, and its derivative in ``d``.
+
+    The solid beyond the wall is counted as liquid at the rest number density: the kernel
+    integrated over the half-space, (2π/s³) ∫_d^h (h − r)³ r (r − d) dr = (2π/s³) a⁵ (h/20 −
+    a/30) with a = h − d. ``coef`` (:func:`pourbench.fluids.solver._wall_coef`) is 2π/s³
+    scaled so that at d = s/2 the term equals what a cubic lattice's missing half holds,
+    times ``rest_packing``: the continuum overcounts a lattice's nearest neighbours."""
+    a = h - wp.clamp(d, 0.0, h)
+    a4 = a * a * a * a
+    return wp.vec2(coef * a4 * a * (h / 20.0 - a / 30.0), -coef * (h * a4 / 4.0 - a4 * a / 5.0))
+
+
+@wp.func
+def wall_distance(wall: wp.vec4, pi: wp.vec3) -> float:
+    """Distance of ``pi`` from a particle's wall plane (n, offset): n · p − offset."""
+    return wp.dot(wp.vec3(wall[0], wall[1], wall[2]), pi) - wall[3]
+
+
+@wp.func
+def density_and_lambda(
+    a: vec5, h: float, w0: float, eps: float, wall: wp.vec4, pi: wp.vec3, wall_coef: float
+) -> wp.vec2:
     """(ρ_i/ρ0, λ_i) from a particle's density sums ``a``: λ_i = −C_i / (Σ|∇C|² + ε) of the
-    unilateral density constraint."""
-    grad_i = wp.vec3(a[0], a[1], a[2])
-    rho = (a[3] + spiky(0.0, h)) / w0
+    unilateral density constraint. The nearest wall (``wall``: its plane, see
+    :func:`predict`) adds the kernel sum of the liquid its solid replaces (:func:`wall_sum`)
+    and that sum's gradient to ∇_i C_i; the wall has no constraint of its own, so it adds no
+    |∇_wall C|² term."""
+    ws = wall_sum(wall_distance(wall, pi), h, wall_coef)
+    grad_i = wp.vec3(a[0], a[1], a[2]) + wp.vec3(wall[0], wall[1], wall[2]) * (ws[1] / w0)
+    rho = (a[3] + spiky(0.0, h) + ws[0]) / w0
     c = wp.max(rho - 1.0, 0.0)  # unilateral: a free surface is not pulled together
     return wp.vec2(rho, -c / (a[4] + wp.dot(grad_i, grad_i) + eps))
 
@@ -370,6 +397,9 @@ def density_and_lambda(a: vec5, h: float, w0: float, eps: float) -> wp.vec2:
 @wp.kernel
 def compute_lambda(
     sums: wp.array(dtype=vec5),
+    p: wp.array(dtype=wp.vec3),
+    wall: wp.array(dtype=wp.vec4),
+    wall_coef: float,
     h: float,
     w0: float,
     eps: float,
@@ -379,7 +409,7 @@ def compute_lambda(
     """λ of every particle from its density sums (half lists; full lists compute it at the end
     of their density pass); clears the sums."""
     i = wp.tid()
-    d = density_and_lambda(sums[i], h, w0, eps)
+    d = density_and_lambda(sums[i], h, w0, eps, wall[i], p[i], wall_coef)
     density[i] = d[0]
     lam[i] = d[1]
     sums[i] = vec5(0.0)
@@ -566,6 +596,8 @@ def pair_kernels(half: bool) -> PairKernels:
         scorr_wdq: float,
         w0: float,
         eps: float,
+        wall: wp.array(dtype=wp.vec4),
+        wall_coef: float,
         sums: wp.array(dtype=vec5),
         pair: wp.array(dtype=wp.vec2),
         lam: wp.array(dtype=float),
@@ -613,7 +645,7 @@ def pair_kernels(half: bool) -> PairKernels:
         if wp.static(half):
             wp.atomic_add(sums, i, acc)
         else:  # full lists: the sums are complete, so λ follows here (no compute_lambda)
-            d = density_and_lambda(acc, h, w0, eps)
+            d = density_and_lambda(acc, h, w0, eps, wall[i], pi, wall_coef)
             density[i] = d[0]
             lam[i] = d[1]
 
@@ -1026,24 +1058,8 @@ CLEAR_MARGIN = wp.constant(1.0e-6)
 float rounding of a local point (~1e-8 m a metre from the origin)."""
 
 
-@wp.func
-def clearance(cols: Colliders, w: int, pi: wp.vec3, radius: float) -> float:
-    """How far a particle at ``pi`` can move before it comes within ``radius`` of a collider
-    of world ``w`` (at their end-of-step poses): the least signed distance minus ``radius``,
-    or the distance to the bounding sphere of a collider out of reach.
-
-    Every collider SDF here is 1-Lipschitz (exact distances, or the maximum of two for box
-    shells), so after moves of total length L the particle is still at least clearance − L
-    clear: while that stays above :data:`CLEAR_MARGIN` the collider passes can skip the
-    particle's SDFs without changing any result."""
-    room = float(1.0e10)
-    for c in range(cols.world_start[w], cols.world_end[w]):
-        q = wp.transform_point(wp.transform_inverse(cols.pose[c]), pi)
-        gap = wp.length(q) - cols.bound[c] - radius
-        if gap <= 0.0:
-            gap = sdf_of(cols, c, q)[0] - radius
-        room = wp.min(room, gap)
-    return room
+NO_WALL = wp.constant(wp.vec4(0.0, 0.0, 1.0, -1.0e6))
+"""Wall plane of a particle with no collider within h: a million metres away."""
 
 
 # --------------------------------------------------------------------------- step 1: predict
@@ -1059,12 +1075,25 @@ def predict(
     dt: float,
     cols: Colliders,
     radius: float,
+    h: float,
     x_prev: wp.array(dtype=wp.vec3),
     p: wp.array(dtype=wp.vec3),
     clear: wp.array(dtype=float),
+    wall: wp.array(dtype=wp.vec4),
+    wall_collider: wp.array(dtype=wp.int32),
 ):
-    """Velocity and predicted position x* under gravity and damping; ``clear``: the predicted
-    position's :func:`clearance`, which the collider passes spend as particles move."""
+    """Velocity and predicted position x* under gravity and damping, and at x*:
+
+    - ``clear``: how far the particle can move before it comes within ``radius`` of a
+      collider of its world (end-of-step poses): the least signed distance minus ``radius``,
+      or the distance to the bounding sphere of a collider out of reach. Every collider SDF
+      here is 1-Lipschitz (exact distances, or the maximum of two for box shells), so after
+      moves of total length L the particle is still at least ``clear`` − L clear: while that
+      stays above :data:`CLEAR_MARGIN` the collider passes skip its SDFs without changing
+      any result.
+    - ``wall``, ``wall_collider``: the nearest collider surface within h, as the plane
+      (n, n · x* − distance) tangent to it, and its index (−1 and :data:`NO_WALL` if none):
+      the wall term of the density constraint (:func:`density_and_lambda`)."""
     i = wp.tid()
     w = world[i]
     vi = (v[i] + gravity * dt) * (1.0 / (1.0 + damping[w] * dt))
@@ -1072,7 +1101,26 @@ def predict(
     x_prev[i] = x[i]
     pi = x[i] + vi * dt
     p[i] = pi
-    clear[i] = clearance(cols, w, pi, radius)
+    room = float(1.0e10)
+    nearest = float(h)
+    plane = NO_WALL
+    index = int(-1)
+    for c in range(cols.world_start[w], cols.world_end[w]):
+        q = wp.transform_point(wp.transform_inverse(cols.pose[c]), pi)
+        gap = wp.length(q) - cols.bound[c]
+        if gap < h:
+            sd = sdf_of(cols, c, q)
+            room = wp.min(room, sd[0] - radius)
+            if sd[0] < nearest:
+                nearest = sd[0]
+                n = wp.transform_vector(cols.pose[c], wp.vec3(sd[1], sd[2], sd[3]))
+                plane = wp.vec4(n[0], n[1], n[2], wp.dot(n, pi) - sd[0])
+                index = c
+        else:
+            room = wp.min(room, gap - radius)
+    clear[i] = room
+    wall[i] = plane
+    wall_collider[i] = index
 
 
 WRENCH_UNIT = wp.constant(1.0e-9)
@@ -1108,15 +1156,23 @@ def apply_delta(
     mass: wp.array(dtype=float),
     radius: float,
     dt: float,
+    lam: wp.array(dtype=float),
+    wall: wp.array(dtype=wp.vec4),
+    wall_collider: wp.array(dtype=wp.int32),
+    wall_coef: float,
+    h: float,
+    w0: float,
     push: wp.array(dtype=float),
     clear: wp.array(dtype=float),
 ):
-    """End of a Jacobi iteration: p += sor · Δp (``delta`` cleared for the next one), then
+    """End of a Jacobi iteration: p += sor · (Δp + λ_i ∇_i C_wall), the wall's share of the
+    density constraint (:func:`density_and_lambda`) pushing the particle off its nearest
+    collider, whose body takes the reaction (``delta`` cleared for the next one); then
     projection out of colliders, reactions summed per body.
 
     The normal push-out distance is accumulated in ``push``: it is the normal impulse (times
     dt/m) that Coulomb friction in :func:`collide` scales with. A particle whose clearance
-    (``clear``, see :func:`clearance`) outlasts its move skips the colliders; otherwise the
+    (``clear``, see :func:`predict`) outlasts its move skips the colliders; otherwise the
     clearance is measured again (negative after a projection, so the next pass looks again).
     """
     i = wp.tid()
@@ -1124,6 +1180,13 @@ def apply_delta(
     p0 = p[i]
     pi = p0 + delta[i] * sor
     delta[i] = wp.vec3(0.0)
+    wc = wall_collider[i]
+    if wc >= 0:
+        wl = wall[i]
+        ws = wall_sum(wall_distance(wl, p0), h, wall_coef)
+        push_off = wp.vec3(wl[0], wl[1], wl[2]) * (sor * lam[i] * ws[1] / w0)
+        pi = pi + push_off
+        add_reaction(cols, wc, push_off, pi, mass[w], dt)
     room = clear[i] - wp.length(pi - p0)
     if room > CLEAR_MARGIN:  # no collider within reach
         clear[i] = room
@@ -1176,7 +1239,7 @@ def collide(
     never crossed, whatever the speeds. Position corrections, converted to forces
     (m Δx / dt²), are summed per body as the liquid's reaction on it.
 
-    ``clear`` bounds the end point's distance to every collider (:func:`clearance`): where
+    ``clear`` bounds the end point's distance to every collider (:func:`predict`): where
     it exceeds the local path's length plus the adhesion band, nothing on the path comes
     near the collider, and its SDFs are skipped.
     """

@@ -7,7 +7,8 @@ kernel launch per stage advances every world. A step is Macklin & Müller's PBF 
 predict (gravity, damping) → neighbour lists (spatial hash of (world, cell), radix-sorted;
 half lists on the CPU, each pair once and its terms added to both particles, full lists on
 CUDA, see ``SolverConfig.pair_lists``) → ``iterations`` Jacobi density iterations (λ with
-constraint-force mixing, Δp with the s_corr tensile term, projection out of colliders) →
+constraint-force mixing and a wall term for the liquid the nearest collider replaces, Δp with
+the s_corr tensile term, projection out of colliders) →
 swept collision with friction and adhesion (reaction summed
 per body) → velocity update (dissipation) → vorticity confinement, XSPH viscosity, cohesion,
 surface tension and particle friction.
@@ -73,10 +74,10 @@ class SolverConfig:
             1/spacing³, as a fraction of the sum in a cubic lattice of ``spacing``; the rest
             "density" of the constraint is the lattice sum times this. A settled liquid is
             disordered, and a disordered packing reaches the lattice's kernel sum only when
-            it is 3–5 % denser: with the lattice's sum (1.0) settled water holds ~1050 kg/m³
-            in the bulk (mass per volume in :func:`pourbench.fluids.validation.rest_in_cup`'s
-            probe), with 0.97 it holds 995–1000 kg/m³ (number density in 1 cm slabs of a
-            settled 250–300 g column: 0.997 / spacing³ at the default ``sor``).
+            it is denser: with the lattice's sum (1.0) settled water holds 1026 kg/m³ in the
+            bulk (mass per volume in :func:`pourbench.fluids.validation.rest_in_cup`'s
+            probe), with 0.99 it holds 997–1003 kg/m³, with 0.985 1000. (Before the wall
+            term of the density constraint, 0.97 gave 995: liquid packed denser at walls.)
         scorr_k, scorr_n, scorr_dq: tensile-instability term s_corr = −k (W(r)/W(Δq))^n,
             with Δq = scorr_dq × h.
         max_neighbours: capacity of a particle's neighbour list (full lists: all its
@@ -125,7 +126,7 @@ class SolverConfig:
     iterations: int = 4
     smoothing: float = 2.0
     relaxation: float = 0.01
-    rest_packing: float = 0.97
+    rest_packing: float = 0.99
     scorr_k: float = 0.1
     scorr_n: float = 4.0
     scorr_dq: float = 0.2
@@ -258,6 +259,23 @@ def _rest_sums(cfg: SolverConfig) -> tuple[float, float, float]:
     return w0, grad_c, sum_grad2
 
 
+def _wall_coef(cfg: SolverConfig) -> float:
+    """``coef`` of :func:`pourbench.fluids.kernels.wall_sum`: a particle at s/2 from a wall
+    in a cubic lattice of spacing s misses the lattice points mirrored beyond the wall; their
+    kernel sum over the continuum's a⁵ (h/20 − a/30) at a = h − s/2, times ``rest_packing``
+    (as the rest sum w0). About 0.76 × 2π/s³ at h = 2s: the continuum counts neighbours
+    closer than a lattice holds them."""
+    h, s = cfg.h, cfg.spacing
+    n = math.ceil(h / s)
+    g = np.arange(-n, n + 1) * s
+    beyond = -(np.arange(n) + 1.0) * s  # mirror layers at s, 2s, ... from the particle
+    x, y, z = np.meshgrid(g, g, beyond, indexing="ij")
+    dist = np.sqrt(x**2 + y**2 + z**2)
+    mirror = float(np.where(dist < h, (h - dist) ** 3, 0.0).sum())
+    a = h - s / 2
+    return cfg.rest_packing * mirror / (a**5 * (h / 20 - a / 30))
+
+
 class PBFSolver:
     """Position-based fluids for ``num_worlds`` independent worlds.
 
@@ -277,6 +295,7 @@ class PBFSolver:
         self.half_lists = mode == "half"
         self.pairk = K.HALF_LISTS if self.half_lists else K.FULL_LISTS
         self.w0, self.grad_c, sum_grad2 = _rest_sums(self.config)
+        self.wall_coef = _wall_coef(self.config)
         n = math.ceil(self.config.smoothing)
         g = np.arange(-n, n + 1) * self.config.spacing
         lat = np.linalg.norm(np.stack(np.meshgrid(g, g, g), -1).reshape(-1, 3), axis=1)
@@ -479,7 +498,9 @@ class PBFSolver:
         self.vsum = wp.zeros(n, dtype=wp.vec4, device=dev)
         self.dv_sum = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.push = wp.zeros(n, dtype=float, device=dev)
-        self.clear = wp.zeros(n, dtype=float, device=dev)  # collider clearance (K.clearance)
+        self.clear = wp.zeros(n, dtype=float, device=dev)  # collider clearance (K.predict)
+        self.wall = wp.zeros(n, dtype=wp.vec4, device=dev)  # nearest wall's plane (K.predict)
+        self.wall_collider = wp.full(n, -1, dtype=wp.int32, device=dev)
         self.density = wp.zeros(n, dtype=float, device=dev)
         self.contacts = wp.zeros(n, dtype=wp.int32, device=dev)
         self.order_keys = wp.zeros(2 * max(n, 1), dtype=wp.int64, device=dev)
@@ -706,8 +727,9 @@ class PBFSolver:
                 cfg.dt,
                 self.cols,
                 cfg.radius,
+                cfg.h,
             ],
-            [self.x_prev, self.p, self.clear],
+            [self.x_prev, self.p, self.clear, self.wall, self.wall_collider],
         )
         self._build_neighbours()
         for _ in range(cfg.iterations):
@@ -727,6 +749,8 @@ class PBFSolver:
                     self.scorr_wdq,
                     self.w0,
                     self.eps,
+                    self.wall,
+                    self.wall_coef,
                 ],
                 [self.sums, self.pair, self.lam, self.density],
             )
@@ -734,7 +758,7 @@ class PBFSolver:
                 self._launch(
                     "compute_lambda",
                     K.compute_lambda,
-                    [self.sums, cfg.h, self.w0, self.eps],
+                    [self.sums, self.p, self.wall, self.wall_coef, cfg.h, self.w0, self.eps],
                     [self.lam, self.density],
                 )
             self._launch(
@@ -768,6 +792,12 @@ class PBFSolver:
                     self.mass,
                     cfg.radius,
                     cfg.dt,
+                    self.lam,
+                    self.wall,
+                    self.wall_collider,
+                    self.wall_coef,
+                    cfg.h,
+                    self.w0,
                 ],
                 [self.push, self.clear],
             )
