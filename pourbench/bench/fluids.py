@@ -205,7 +205,8 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
         f"| floating box: water column beside it − under it (mm) | "
         f"{afloat.column_difference * 1e3:.1f} | {afloat.archimedes * 1e3:.1f} (Archimedes) |",
         f"| floating box: draft below the water level (mm) | {afloat.draft * 1e3:.1f} | "
-        f"{afloat.archimedes * 1e3:.1f} (Archimedes; deeper: liquid packs denser at walls) |",
+        f"{afloat.archimedes * 1e3:.1f} (Archimedes; deeper where liquid packs denser: "
+        "the box's edges) |",
     ]
     for liq, t, g in zip(VISCOUS_ORDER, t_half, left, strict=True):
         lines.append(

@@ -136,7 +136,8 @@ def floating_box(
     beside it, so the water column beside it exceeds the column under it by the box's mass
     over its footprint (``column_difference`` = ``archimedes``), a measure of masses that
     the liquid's compression does not change. ``draft`` is geometric: where the liquid packs
-    denser than at rest, the box sits deeper than ``archimedes``.
+    denser than at rest (without the density constraint's wall term, against every wall;
+    with it, still at the box's edges and corners), the box sits deeper than ``archimedes``.
     """
     import mujoco
 
