@@ -1181,10 +1181,11 @@ def apply_delta(
     pi = p0 + delta[i] * sor
     delta[i] = wp.vec3(0.0)
     wc = wall_collider[i]
-    if wc >= 0:
+    li = lam[i]
+    if wc >= 0 and li < 0.0:  # λ = 0 (not compressed): no push, and no reaction to sum
         wl = wall[i]
         ws = wall_sum(wall_distance(wl, p0), h, wall_coef)
-        push_off = wp.vec3(wl[0], wl[1], wl[2]) * (sor * lam[i] * ws[1] / w0)
+        push_off = wp.vec3(wl[0], wl[1], wl[2]) * (sor * li * ws[1] / w0)
         pi = pi + push_off
         add_reaction(cols, wc, push_off, pi, mass[w], dt)
     room = clear[i] - wp.length(pi - p0)

@@ -994,8 +994,9 @@ class PBFSolver:
         The velocity the next step starts from also carries the impulses computed at the end
         of this one (XSPH viscosity, vorticity confinement, cohesion, surface tension, particle
         friction), which move particles only in the next step, where the density constraint
-        balances them: in water settled for 3 s those impulses read about 2 mm/s on the
-        median particle, which moves 0.3 mm/s (docs/rest.md). Before the first step after a scene
+        balances them: in water settled for 3 s (measured before the density constraint's wall
+        term) those impulses read about 2 mm/s on the median particle, which moved 0.3 mm/s
+        (docs/rest.md). Before the first step after a scene
         change, the velocities the particles carry into it (as given to :meth:`add_particles`).
         """
         if self._dirty:
