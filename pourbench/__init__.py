@@ -22,6 +22,10 @@ def register_envs() -> None:
             id="pourbench/Pour-v0",
             entry_point="pourbench.envs.pour:PourEnv",
             vector_entry_point="pourbench.envs.vector:PourVectorEnv",
+            # Gymnasium 1.4's passive checker never records the data of a first reset that
+            # raised (a rejected option), and then fails every later step of the environment
+            # with a TypeError. The environment passes Gymnasium's full check_env in the tests.
+            disable_env_checker=True,
         )
 
 

@@ -1,8 +1,9 @@
-"""The ``pourbench`` console script.
+"""pourbench: liquid-pouring benchmarks on MuJoCo and a Warp position-based-fluids solver.
 
-Subcommands import their modules lazily so ``pourbench --help`` stays fast. Each benchmark
-suite is a module ``pourbench.bench.<suite>`` exposing ``run(args) -> int``; a suite with a
-CUDA path sets ``HAS_CUDA = True`` and reads ``args.device``.
+The ``pourbench`` console script. Subcommands import their modules lazily so
+``pourbench --help`` stays fast. Each benchmark suite is a module ``pourbench.bench.<suite>``
+exposing ``run(args) -> int``; a suite with a CUDA path sets ``HAS_CUDA = True`` and reads
+``args.device``.
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+
+from pourbench.argtypes import nonnegative_int, positive_int
 
 BENCH_SUITES: tuple[str, ...] = ("fluids", "teleop", "planning", "env")
 
@@ -68,6 +71,15 @@ def _cmd_liquids(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_containers(args: argparse.Namespace) -> int:
+    from pourbench.containers import container_names, get_container
+
+    for name in container_names():
+        c = get_container(name)
+        print(f"{c.name:19s} {c.role:10s} {c.kind:8s} {c.description}")
+    return 0
+
+
 def _cmd_view(args: argparse.Namespace) -> int:
     from pourbench.scene import build_pour_scene
 
@@ -88,14 +100,19 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pourbench", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
+    defaults = {"formatter_class": argparse.ArgumentDefaultsHelpFormatter}
 
-    demo = sub.add_parser("demo", help="pour 200 g of water between two cups; write a recording")
+    demo = sub.add_parser(
+        "demo", help="pour 200 g of water between two cups; write a recording", **defaults
+    )
     from pourbench.demo import add_arguments as demo_arguments
 
     demo_arguments(demo)
     demo.set_defaults(func=_cmd_demo)
 
-    bench = sub.add_parser("bench", help="run a benchmark suite and write leaderboard/<suite>.*")
+    bench = sub.add_parser(
+        "bench", help="run a benchmark suite and write leaderboard/<suite>.*", **defaults
+    )
     bench.add_argument("suite", choices=(*BENCH_SUITES, "all"))
     bench.add_argument("--quick", action="store_true", help="the smallest case only")
     bench.add_argument("--json", action="store_true", help="print one JSON object to stdout")
@@ -110,23 +127,39 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench.set_defaults(func=_cmd_bench)
 
-    ev = sub.add_parser("eval", help="pour with a policy on Pour-v0; print error, spill, success")
+    ev = sub.add_parser(
+        "eval", help="pour with a policy on Pour-v0; print error, spill, success", **defaults
+    )
     ev.add_argument("--policy", default="pd", choices=("pd", "random"))
     ev.add_argument("--liquid", default="water", help="liquid profile name")
     ev.add_argument("--target-g", type=float, default=100.0, help="target amount, g")
-    ev.add_argument("--episodes", type=int, default=10)
-    ev.add_argument("--seed", type=int, default=0, help="first episode's seed")
+    ev.add_argument("--episodes", type=positive_int, default=10, help="episodes to run")
+    ev.add_argument("--seed", type=nonnegative_int, default=0, help="first episode's seed")
     ev.add_argument("--containers", default="training", choices=("training", "novel"))
     ev.set_defaults(func=_cmd_eval)
 
     liquids = sub.add_parser("liquids", help="list the shipped liquid profiles")
     liquids.set_defaults(func=_cmd_liquids)
 
-    view = sub.add_parser("view", help="record a composed scene to a rerun .rrd (or open it)")
+    containers = sub.add_parser("containers", help="list the shipped containers")
+    containers.set_defaults(func=_cmd_containers)
+
+    view = sub.add_parser(
+        "view", help="record a composed scene to a rerun .rrd (or open it)", **defaults
+    )
     view.add_argument("what", choices=("scene",))
-    view.add_argument("--robot", default="movo", help="movo, panda or none (mocap container)")
-    view.add_argument("--pouring", default="training", help="pouring container name")
-    view.add_argument("--receiving", default="tray", help="receiving container name")
+    view.add_argument(
+        "--robot",
+        default="movo",
+        choices=("movo", "panda", "none"),
+        help="none: the pouring container on a mocap body",
+    )
+    view.add_argument(
+        "--pouring", default="training", help="pouring container (`pourbench containers`)"
+    )
+    view.add_argument(
+        "--receiving", default="tray", help="receiving container (`pourbench containers`)"
+    )
     view.add_argument("--out", default="scene.rrd", help="rerun recording to write")
     view.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer instead")
     view.set_defaults(func=_cmd_view)

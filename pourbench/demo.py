@@ -1,37 +1,44 @@
-"""``pourbench demo``: pour 200 g of water from one cup into another and record it.
+"""``pourbench demo``: the liquid core on its own, on the CPU.
 
-Until the pouring environment lands this is the liquid core's demo: a source cup filled with
-200 g of water is tilted about its lip over a receiving cup standing on a force sensor; the
-poured / spilled / remaining grams and the sensor's reading are printed, and a rerun
-recording of particles and containers is written.
+A source cup filled with 200 g of water is tilted about its lip over a receiving cup standing
+on a MuJoCo force sensor; the poured / spilled / remaining grams and the sensor's reading are
+printed, and a rerun recording of particles and containers is written (moved into place only
+when the run finishes, so a failed run keeps the previous one). The pouring task with its
+PD baseline is ``pourbench eval``.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from tqdm import tqdm
+
+from pourbench.argtypes import positive_float
+from pourbench.outputs import check_output_path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--liquid", default="water", help="liquid profile name")
-    parser.add_argument("--mass-g", type=float, default=200.0, help="liquid in the source cup")
-    parser.add_argument("--seconds", type=float, default=4.0, help="simulated time")
-    parser.add_argument("--out", default="runs/demo.rrd", help="rerun recording path")
-    parser.add_argument("--device", default="cpu", help='"cpu" or "cuda"')
+    parser.add_argument(
+        "--mass-g", type=positive_float, default=200.0, help="liquid in the source cup, g"
+    )
+    parser.add_argument("--seconds", type=positive_float, default=4.0, help="simulated time, s")
+    parser.add_argument("--out", default="runs/demo.rrd", help="rerun recording to write")
+    parser.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
 
 
 def run_demo(args: argparse.Namespace) -> int:
     from pourbench.fluids.record import FluidRecorder
     from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
-    from pourbench.fluids.solver import SolverConfig
+    from pourbench.fluids.solver import SolverConfig, cuda_available
 
+    if args.device == "cuda" and not cuda_available():
+        raise ValueError("--device cuda: Warp sees no CUDA device")
+    check_output_path(args.out)  # before the scene is built: a bad path fails at once
     scene = two_cup_scene(args.liquid, args.mass_g, config=SolverConfig(device=args.device))
     solver = scene.solver
-    out = Path(args.out)
-    rec = FluidRecorder(out, solver)
+    rec = FluidRecorder(args.out, solver)
     steps = round(args.seconds / solver.config.dt)
     frame = max(1, round(1 / 30 / solver.config.dt))  # record at 30 Hz
     print(
@@ -39,12 +46,17 @@ def run_demo(args: argparse.Namespace) -> int:
         f"({solver.num_particles} particles) for {args.seconds:g} s",
         file=sys.stderr,
     )
-    for k in tqdm(range(steps), desc="simulating", unit="step", file=sys.stderr, mininterval=2):
-        scene.set_tilt(tilt_schedule(solver.time))
-        scene.step()
-        if k % frame == 0:
-            rec.log()
-    rec.close()
+    try:
+        bar = tqdm(range(steps), desc="simulating", unit="step", file=sys.stderr, mininterval=2)
+        for k in bar:
+            scene.set_tilt(tilt_schedule(solver.time))
+            scene.step()
+            if k % frame == 0:
+                rec.log()
+    except BaseException:  # interrupted or failed: keep the previous recording
+        rec.discard()
+        raise
+    out = rec.close()
     m = scene.metrics()
     print(f"poured into the receiving cup: {m.inside_g[1]:7.1f} g")
     print(f"spilled:                       {m.spilled_g:7.1f} g")

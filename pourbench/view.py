@@ -13,6 +13,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from pourbench.outputs import AtomicOutput
+
 _RINGS, _SEGMENTS = 8, 16
 
 
@@ -115,9 +117,9 @@ def record(model: mujoco.MjModel, data: mujoco.MjData, path: str | Path) -> Path
     """Write the scene's geoms at ``data``'s pose to a rerun recording at ``path``."""
     import rerun as rr
 
-    path = Path(path)
+    out = AtomicOutput(path)
     rec = rr.RecordingStream("pourbench")
-    rec.save(str(path))
+    rec.save(str(out.partial))
     rec.log("scene", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     for entity, verts, tris, rgba in world_meshes(model, data):
         colour = (np.clip(rgba, 0, 1) * 255).astype(np.uint8)
@@ -127,4 +129,5 @@ def record(model: mujoco.MjModel, data: mujoco.MjData, path: str | Path) -> Path
             static=True,
         )
     rec.flush()
-    return path
+    rec.disconnect()
+    return out.commit()

@@ -1,4 +1,4 @@
-"""The demo command: accounting of the printed grams, the recording, and bad input."""
+"""The console script: the demo's accounting of grams, its recording, and bad input."""
 
 from __future__ import annotations
 
@@ -27,3 +27,40 @@ def test_demo_unknown_liquid_is_a_clear_error(capsys) -> None:
     assert main(["demo", "--liquid", "lava", "--seconds", "0.1"]) == 2
     err = capsys.readouterr().err
     assert "unknown liquid 'lava'" in err and "Water" in err
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["demo", "--seconds", "nan"], "--seconds"),
+        (["demo", "--seconds", "-1"], "--seconds"),
+        (["demo", "--mass-g", "-5"], "--mass-g"),
+        (["demo", "--mass-g", "inf"], "--mass-g"),
+        (["demo", "--device", "gpu"], "--device"),
+        (["eval", "--episodes", "0"], "--episodes"),
+        (["eval", "--seed", "-1"], "--seed"),
+        (["view", "scene", "--robot", "r2d2"], "--robot"),
+    ],
+)
+def test_bad_numbers_and_names_are_refused_while_parsing(argv, option, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    assert f"argument {option}:" in capsys.readouterr().err
+
+
+def test_a_bad_run_keeps_the_previous_recording(tmp_path, capsys) -> None:
+    out = tmp_path / "demo.rrd"
+    out.write_bytes(b"an earlier recording")
+    assert main(["demo", "--liquid", "lava", "--out", str(out)]) == 2
+    assert main(["demo", "--out", str(tmp_path)]) == 2  # a folder, not a file
+    assert "is a folder" in capsys.readouterr().err
+    assert out.read_bytes() == b"an earlier recording"
+    assert [p.name for p in tmp_path.iterdir()] == ["demo.rrd"]  # no partial file left
+
+
+def test_view_writes_into_a_new_folder(tmp_path) -> None:
+    out = tmp_path / "new" / "scene.rrd"
+    assert main(["view", "scene", "--robot", "none", "--out", str(out)]) == 0
+    assert out.stat().st_size > 1_000
+    assert not out.with_name("scene.rrd.partial").exists()

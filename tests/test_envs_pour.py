@@ -132,10 +132,33 @@ def test_bad_input() -> None:
         env.reset(options={"target_g": -5.0})
     with pytest.raises(ValueError, match="lesson"):
         env.set_lesson(7)
+    with pytest.raises(ValueError, match=r"target_g=1e\+06 g is more than container"):
+        env.reset(options={"target_g": 1e6})
+    with pytest.raises(ValueError, match="initial_g must be finite"):
+        env.reset(options={"initial_g": float("nan")})
+    with pytest.raises(ValueError, match="initial_g=50 g is less than target_g=80 g"):
+        env.reset(options={"target_g": 80.0, "initial_g": 50.0})
+    with pytest.raises(ValueError, match=r"start must be three finite numbers"):
+        env.reset(options={"start": (0.1, 0.0)})
+    with pytest.raises(ValueError, match=r"shape \(2,\)"):
+        env.step([0.0])
     venv = PourVectorEnv(2)
     venv.reset(seed=0)
     with pytest.raises(ValueError, match="finite"):
         venv.step(np.array([[0.0, 0.0], [0.0, np.nan]]))
+    with pytest.raises(ValueError, match=r"shape \(2, 2\)"):
+        venv.step(np.zeros(2))
+
+
+def test_a_rejected_first_reset_leaves_the_made_env_usable() -> None:
+    # Gymnasium's passive checker broke every later step after a first reset that raised
+    env = gym.make("pourbench/Pour-v0", max_steps=3)
+    with pytest.raises(ValueError, match="unknown liquid"):
+        env.reset(options={"liquid": "lava"})
+    env.reset(seed=0, options={"start": ABOVE})
+    obs, rew, term, trunc, info = env.step(np.zeros(2))
+    assert obs.shape == (12,) and np.isfinite(rew) and not (term or trunc)
+    assert info["target_g"] > 0
 
 
 def test_vector_autoreset_rollout() -> None:

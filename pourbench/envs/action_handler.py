@@ -37,6 +37,30 @@ class ActionLimits:
     clearance_margin: float = 0.05
 
 
+def as_actions(actions: object, n: int | None = None) -> np.ndarray:
+    """``actions`` as an (n, 2) float array of (tilt rate, approach rate) rows.
+
+    Raises:
+        ValueError: the actions do not hold two numbers a world (``n`` worlds when given),
+            or hold NaN or infinite values.
+    """
+    try:
+        a = np.asarray(actions, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"actions must be numbers, got {actions!r}") from exc
+    rows = a.size // 2 if n is None else n
+    if a.size != 2 * rows or a.size == 0 or (a.ndim > 1 and a.shape[-1] != 2):
+        want = "(2,) or (n, 2)" if n is None else ("(2,)" if n == 1 else f"({n}, 2)")
+        raise ValueError(
+            f"actions must have shape {want}: (tilt rate, approach rate) a world; "
+            f"got shape {a.shape}"
+        )
+    a = a.reshape(rows, 2)
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"actions must be finite, got {a.tolist()}")
+    return a
+
+
 def handle_actions(
     actions: np.ndarray,
     base: np.ndarray,
@@ -75,10 +99,7 @@ def handle_actions(
     """
     if mode not in ACTION_MODES:
         raise ValueError(f"unknown action_mode {mode!r}; known: {list(ACTION_MODES)}")
-    a = np.asarray(actions, float).reshape(-1, 2)
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"actions must be finite, got {a.tolist()}")
-    a = np.clip(a, -1.0, 1.0)
+    a = np.clip(as_actions(actions), -1.0, 1.0)
     omega, r = a[:, 0] * limits.max_rate, a[:, 1] * limits.max_speed
     base = np.asarray(base, float)
     d_xy = target_pos[:, :2] - base[:, :2]

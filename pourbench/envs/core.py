@@ -23,11 +23,11 @@ import mujoco
 import numpy as np
 
 from pourbench.containers import Container, container_names, get_container
-from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, handle_actions
+from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, as_actions, handle_actions
 from pourbench.envs.curriculum import Lesson, load_curriculum
 from pourbench.envs.observation import GRAVITY, WeightFilter
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
-from pourbench.errors import CapacityError, UnknownNameError
+from pourbench.errors import CapacityError, UnknownNameError, check_finite
 from pourbench.fluids import (
     LiquidProfile,
     MujocoCoupling,
@@ -272,15 +272,17 @@ class PourBatch:
         if not math.isfinite(target) or target <= 0:
             raise ValueError(f"target_g must be a positive number of grams, got {target!r}")
         cap = 0.85 * self.capacity_g(name, liquid.density)
+        holds = f"container {name!r} holds {cap:.0f} g of {liquid.name} (85 % of its capacity)"
+        if target > cap:
+            raise CapacityError(f"target_g={target:g} g is more than {holds}")
         initial = opts.get("initial_g")
         if initial is None:
             initial = min(target + float(rng.uniform(*cfg.extra_range_g)), cap)
-        initial = float(initial)
-        if initial > cap or initial < target:
-            raise CapacityError(
-                f"container {name!r} holds {cap:.0f} g of {liquid.name} (85 % of its capacity); "
-                f"initial_g={initial:.1f} g must be in [target_g={target:.1f}, {cap:.0f}]"
-            )
+        initial = check_finite("initial_g", initial)
+        if initial > cap:
+            raise CapacityError(f"initial_g={initial:g} g is more than {holds}")
+        if initial < target:
+            raise ValueError(f"initial_g={initial:g} g is less than target_g={target:g} g")
         start = opts.get("start")
         if start is None:
             start = [
@@ -288,7 +290,13 @@ class PourBatch:
                 rng.uniform(*cfg.start_y),
                 rng.uniform(*cfg.start_height),
             ]
-        base = self.target_pos + np.asarray(start, float)
+        start = np.asarray(start, float)
+        if start.shape != (3,) or not np.all(np.isfinite(start)):
+            raise ValueError(
+                f"start must be three finite numbers (x, y, height above the receiving "
+                f"container, m), got {opts.get('start')!r}"
+            )
+        base = self.target_pos + start
         # MuJoCo world
         d = self.datas[world]
         mujoco.mj_resetData(self.model, d)
@@ -328,9 +336,7 @@ class PourBatch:
             of (n,) arrays).
         """
         cfg = self.config
-        a = np.asarray(actions, dtype=float).reshape(self.n, 2)
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"actions must be finite, got {a.tolist()}")
+        a = as_actions(actions, self.n)
         active = np.ones(self.n, bool) if active is None else np.asarray(active, bool)
         a = np.where(active[:, None], a, 0.0)
         recv = self.receiving

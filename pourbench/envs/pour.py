@@ -11,6 +11,7 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
+from pourbench.envs.action_handler import as_actions
 from pourbench.envs.core import OBS_BOUND, OBS_SIZE, PourBatch, PourConfig
 
 RENDER_SIZE = (480, 640)  # height, width in pixels
@@ -102,7 +103,7 @@ class PourEnv(gym.Env):
         if record_path is not None:
             from pourbench.fluids.record import FluidRecorder
 
-            self._recorder = FluidRecorder(record_path, self.batch.solver)
+            self._recorder = FluidRecorder(record_path, self.batch.solver, atomic=False)
 
     def set_lesson(self, k: int) -> None:
         """Draw liquids from curriculum lesson ``k`` at later resets (when ``liquid`` is None)."""
@@ -122,7 +123,7 @@ class PourEnv(gym.Env):
         return self.batch.observe()[0], info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        a = np.asarray(action, dtype=float).reshape(1, 2)
+        a = as_actions(action, 1)
         obs, rew, term, trunc, info = self.batch.step(a)
         if self._recorder is not None:
             self._recorder.log()

@@ -20,6 +20,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from pourbench.envs.action_handler import as_actions
 from pourbench.envs.core import PourBatch
 from pourbench.envs.pour import RENDER_SIZE, action_space, make_config, observation_space
 from pourbench.envs.pour import render_world as _render_world
@@ -103,9 +104,7 @@ class PourVectorEnv(VectorEnv):
     def step(
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        a = np.asarray(actions, dtype=float).reshape(self.num_envs, 2)
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"actions must be finite, got {a.tolist()}")
+        a = as_actions(actions, self.num_envs)
         resetting = self._needs_reset.copy()
         # every world's physics advances together; a world due for its next-step autoreset
         # holds still through this step and is reset after it, so it returns its first

@@ -9,6 +9,7 @@ import rerun as rr
 
 from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell
 from pourbench.fluids.solver import PBFSolver, transform_points
+from pourbench.outputs import AtomicOutput, check_output_path
 
 
 def container_wireframe(shape: ContainerShape, segments: int = 24) -> list[np.ndarray]:
@@ -41,14 +42,25 @@ def speed_colors(v: np.ndarray, vmax: float = 1.0) -> np.ndarray:
 
 
 class FluidRecorder:
-    """Writes one world of a solver to a rerun ``.rrd`` file, frame by frame."""
+    """Writes one world of a solver to a rerun ``.rrd`` file, frame by frame.
 
-    def __init__(self, path: str | Path, solver: PBFSolver, world: int = 0) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+    With ``atomic`` (a run that records once, such as the demo) frames go to
+    ``<path>.partial`` and :meth:`close` moves the finished recording to ``path``, so a run
+    that fails first leaves an earlier recording there untouched; without it (an
+    environment recording its episodes as they run) frames go straight to ``path``.
+
+    Raises:
+        OutputPathError: ``path`` is a folder or its folder cannot be written.
+    """
+
+    def __init__(
+        self, path: str | Path, solver: PBFSolver, world: int = 0, atomic: bool = True
+    ) -> None:
+        self.out = AtomicOutput(path) if atomic else None
+        self.path = check_output_path(path)
         self.solver, self.world = solver, world
         self.rec = rr.RecordingStream("pourbench")
-        self.rec.save(self.path)
+        self.rec.save(self.out.partial if self.out else self.path)
 
     def log(self) -> None:
         """Log the current particles and container poses at the solver's time."""
@@ -66,5 +78,14 @@ class FluidRecorder:
             strips = [transform_points(c.pose, st) for st in container_wireframe(c.shape)]
             self.rec.log(f"world/container_{k}", rr.LineStrips3D(strips, radii=0.0008))
 
-    def close(self) -> None:
+    def discard(self) -> None:
+        """Stop recording and delete what an atomic recording wrote (``path`` is untouched)."""
+        self.rec.disconnect()
+        if self.out:
+            self.out.discard()
+
+    def close(self) -> Path:
+        """Finish the recording and move it into place; returns its path."""
         self.rec.flush()
+        self.rec.disconnect()
+        return self.out.commit() if self.out else self.path

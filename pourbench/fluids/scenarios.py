@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from pourbench.errors import check_finite
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics
 from pourbench.fluids.params import LiquidProfile
@@ -99,6 +100,8 @@ def two_cup_scene(
     The source cup's pouring lip sits ``lift`` m above the target's rim and ``overlap`` m
     inside its mouth, so tilting about the lip pours into the target.
     """
+    check_finite("mass_g", mass_g, minimum=0.0)
+    check_finite("target_g", target_g, minimum=0.0)
     config = config or SolverConfig()
     source = source or cup(0.04, 0.08)
     target = target or cup(0.10, 0.06)  # the thesis' receiving tray has a 10 cm radius

@@ -1,0 +1,52 @@
+"""Output files that a failed run cannot destroy.
+
+:func:`check_output_path` checks a path before any work starts (not a folder; its folder
+can be created), so a typo fails in a second with a clear message. :class:`AtomicOutput`
+writes to a temporary sibling and moves it into place only when the writer finishes, so a
+run that fails half-way leaves the previous file as it was.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pourbench.errors import PourbenchError
+
+
+class OutputPathError(PourbenchError):
+    """An output path that cannot be written."""
+
+
+def check_output_path(path: str | Path) -> Path:
+    """``path`` as a :class:`~pathlib.Path` whose folder exists (created if missing).
+
+    Raises:
+        OutputPathError: the path is a folder, or its folder cannot be created or written.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise OutputPathError(f"output path {str(p)!r} is a folder; give a file name")
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputPathError(f"cannot create the folder of {str(p)!r}: {exc.strerror}") from exc
+    if not os.access(p.parent, os.W_OK):
+        raise OutputPathError(f"cannot write to the folder of {str(p)!r}: permission denied")
+    return p
+
+
+class AtomicOutput:
+    """A checked output path with a temporary sibling to write to (``.partial`` appended);
+    :meth:`commit` moves it over the final path, :meth:`discard` removes it."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = check_output_path(path)
+        self.partial = self.path.with_name(self.path.name + ".partial")
+
+    def commit(self) -> Path:
+        os.replace(self.partial, self.path)
+        return self.path
+
+    def discard(self) -> None:
+        self.partial.unlink(missing_ok=True)
