@@ -272,7 +272,10 @@ class PourBatch:
         if not math.isfinite(target) or target <= 0:
             raise ValueError(f"target_g must be a positive number of grams, got {target!r}")
         cap = 0.85 * self.capacity_g(name, liquid.density)
-        holds = f"container {name!r} holds {cap:.0f} g of {liquid.name} (85 % of its capacity)"
+        holds = (
+            f"container {name!r} holds {cap:.0f} g of {liquid.name} at "
+            f"{liquid.density:.0f} kg/m^3 (85 % of its capacity)"
+        )
         if target > cap:
             raise CapacityError(f"target_g={target:g} g is more than {holds}")
         initial = opts.get("initial_g")
