@@ -296,8 +296,8 @@ class PourBatch:
         start = np.asarray(start, float)
         if start.shape != (3,) or not np.all(np.isfinite(start)):
             raise ValueError(
-                f"start must be three finite numbers (x, y, height above the receiving "
-                f"container, m), got {opts.get('start')!r}"
+                f"start must be three finite numbers (x, y, height of the pouring container's "
+                f"base relative to the receiving container's, m), got {opts.get('start')!r}"
             )
         base = self.target_pos + start
         # MuJoCo world
