@@ -36,10 +36,9 @@ def check_rest(r: RestResult) -> None:
     disordered packing, ``SolverConfig.rest_packing``; with the lattice's sum the probe read
     1050), and the liquid is still: 99 % of particles below 2 cm/s and the fastest one
     below 3 cm/s at the median sample. The issue asks ≤ 2 cm/s for every particle within
-    1 s: not met, 2–4 cm/s remain at 1 s: sloshing at the cup's own frequencies (1–5 Hz),
-    set off as the ordered fill rearranges in its first 0.05 s, and rare rearrangements
-    later, also from calmer or differently packed starts
-    and with every solver setting tried (docs/rest.md);
+    1 s: not met, 2–3 cm/s remain at 1 s on single surface particles rolling over the
+    layer below while their neighbourhoods move at under 0.6 cm/s, from every start and with
+    every solver setting tried (docs/rest.md);
     :func:`test_settled_water_comes_to_rest` checks the bound at 3 s, and
     :func:`test_sleeping_water_is_the_settled_water_within_one_second` at 1 s with FleX's
     sleep threshold on."""

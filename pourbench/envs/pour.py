@@ -11,7 +11,6 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 
-from pourbench.envs.action_handler import as_actions
 from pourbench.envs.core import OBS_BOUND, OBS_SIZE, PourBatch, PourConfig
 
 RENDER_SIZE = (480, 640)  # height, width in pixels
@@ -123,8 +122,7 @@ class PourEnv(gym.Env):
         return self.batch.observe()[0], info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        a = as_actions(action, 1)
-        obs, rew, term, trunc, info = self.batch.step(a)
+        obs, rew, term, trunc, info = self.batch.step(action)  # checks the action
         if self._recorder is not None:
             self._recorder.log()
         return obs[0], float(rew[0]), bool(term[0]), bool(trunc[0]), _world_info(info, 0)

@@ -20,7 +20,6 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from pourbench.envs.action_handler import as_actions
 from pourbench.envs.core import PourBatch
 from pourbench.envs.pour import RENDER_SIZE, action_space, make_config, observation_space
 from pourbench.envs.pour import render_world as _render_world
@@ -104,12 +103,11 @@ class PourVectorEnv(VectorEnv):
     def step(
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        a = as_actions(actions, self.num_envs)
         resetting = self._needs_reset.copy()
         # every world's physics advances together; a world due for its next-step autoreset
         # holds still through this step and is reset after it, so it returns its first
-        # observation of the new episode
-        obs, rew, term, trunc, info = self.batch.step(a, active=~resetting)
+        # observation of the new episode (the batch checks the actions)
+        obs, rew, term, trunc, info = self.batch.step(actions, active=~resetting)
         if resetting.any():
             for k in np.flatnonzero(resetting):
                 self.batch.reset_world(int(k))

@@ -57,7 +57,7 @@ class FluidRecorder:
         self, path: str | Path, solver: PBFSolver, world: int = 0, atomic: bool = True
     ) -> None:
         self.out = AtomicOutput(path) if atomic else None
-        self.path = check_output_path(path)
+        self.path = self.out.path if self.out else check_output_path(path)
         self.solver, self.world = solver, world
         self.rec = rr.RecordingStream("pourbench")
         self.rec.save(self.out.partial if self.out else self.path)

@@ -996,8 +996,8 @@ class PBFSolver:
         friction), which move particles only in the next step, where the density constraint
         balances them: in water settled for 3 s (measured before the density constraint's wall
         term) those impulses read about 2 mm/s on the median particle, which moved 0.3 mm/s
-        (docs/rest.md). Before the first step after a scene
-        change, the velocities the particles carry into it (as given to :meth:`add_particles`).
+        (docs/rest.md). Before the first step after a scene change, the velocities the
+        particles carry into it (as given to :meth:`add_particles`).
         """
         if self._dirty:
             return self._v.copy()
