@@ -84,6 +84,10 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from pourbench.scene import build_pour_scene
 
     robot = None if args.robot == "none" else args.robot
+    if args.viewer:
+        from pourbench.view import check_display
+
+        check_display()  # before the scene is built: a missing display fails fast
     scene = build_pour_scene(args.pouring, args.receiving, robot)
     data = scene.make_data()
     if args.viewer:

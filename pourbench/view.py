@@ -7,15 +7,35 @@ small hand-written tessellation.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+import os
+import sys
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
+from pourbench.errors import PourbenchError
 from pourbench.outputs import AtomicOutput
 
 _RINGS, _SEGMENTS = 8, 16
+
+
+def check_display(environ: Mapping[str, str] | None = None, platform: str | None = None) -> None:
+    """Raise a clear error when MuJoCo's (GLFW) viewer has no display to open on Linux.
+
+    Without this, GLFW fails after MuJoCo has written its error to ``MUJOCO_LOG.TXT`` in the
+    working directory.
+    """
+    environ = os.environ if environ is None else environ
+    if not (sys.platform if platform is None else platform).startswith("linux"):
+        return
+    if environ.get("DISPLAY") or environ.get("WAYLAND_DISPLAY"):
+        return
+    raise PourbenchError(
+        "--viewer needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); "
+        "leave --viewer out to write a rerun recording instead"
+    )
 
 
 def _sphere(radius: float, half_length: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

@@ -64,3 +64,21 @@ def test_view_writes_into_a_new_folder(tmp_path) -> None:
     assert main(["view", "scene", "--robot", "none", "--out", str(out)]) == 0
     assert out.stat().st_size > 1_000
     assert not out.with_name("scene.rrd.partial").exists()
+
+
+def test_viewer_without_a_display_is_one_clear_error(tmp_path, monkeypatch, capsys) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    assert main(["view", "scene", "--viewer"]) == 2
+    assert "--viewer needs a display" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # no MUJOCO_LOG.TXT left behind
+
+
+def test_display_check_passes_with_a_display_or_off_linux() -> None:
+    from pourbench.view import check_display
+
+    check_display({"DISPLAY": ":0"}, "linux")
+    check_display({"WAYLAND_DISPLAY": "wayland-0"}, "linux")
+    check_display({}, "darwin")  # macOS and Windows open windows without these variables

@@ -34,7 +34,9 @@ from typing import NamedTuple
 
 import warp as wp
 
-wp.config.log_level = wp.LOG_WARNING  # no init greeting or module-load lines on stdout
+from pourbench.fluids.warp_setup import init_warp
+
+init_warp()  # before any kernel or array: quiet, and without the no-driver notice
 wp.set_module_options({"enable_backward": False})
 
 vec5 = wp.types.vector(length=5, dtype=wp.float32)

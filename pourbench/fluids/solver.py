@@ -43,8 +43,6 @@ from pourbench.fluids.meshes import check_closed_mesh
 from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell
 
-wp.config.log_level = wp.LOG_WARNING  # no init greeting or module-load lines on stdout
-
 OVERFLOW_CHECK_EVERY = 16
 """Steps between checks that no neighbour list is full (one small read-back each)."""
 
