@@ -74,6 +74,16 @@ def test_settled_water_comes_to_rest(rest_cpu) -> None:
     check_comes_to_rest(rest_cpu[1])
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="single surface particles still roll over the layer below at 2-3 cm/s at 1 s "
+    "(docs/rest.md); the bound holds at 3 s, or at 1 s with FleX's sleep threshold",
+)
+def test_every_particle_is_below_2_cm_s_within_one_second(rest_cpu) -> None:
+    """The issue's bound as written: every particle of every fill below 2 cm/s over 0.9-1.1 s."""
+    check_comes_to_rest(rest_cpu[0])
+
+
 def test_sleeping_water_is_the_settled_water_within_one_second(rest_cpu) -> None:
     """With FleX's sleepThreshold at 0.5 cm/s the issue's bound holds at 1 s: every particle
     of every fill below 2 cm/s over 0.9–1.1 s, density error ≤ 2 %, 1000 kg/m³ in the probe.
