@@ -1216,6 +1216,34 @@ def apply_delta(
     p[i] = pi
 
 
+@wp.func
+def hold(
+    q: wp.vec3,
+    a: wp.vec3,
+    n: wp.vec3,
+    pen: float,
+    push: float,
+    adhesive_grip: float,
+    static_friction: float,
+    dynamic_friction: float,
+    pull: float,
+) -> wp.vec3:
+    """A surface's hold on a particle at ``q`` (moved from ``a`` this step; collider frame,
+    outward normal ``n``): Coulomb friction on the motion relative to the collider (Macklin
+    et al. 2014, Eq. 24) with grip ``pen`` + the density push + adhesion's, then ``pull``
+    (m) toward the surface (adhesion)."""
+    dx = q - a
+    dt_tan = dx - n * wp.dot(dx, n)
+    lt = wp.length(dt_tan)
+    grip = pen + push + adhesive_grip
+    if lt > 0.0:
+        if lt < static_friction * grip:
+            q = q - dt_tan
+        else:
+            q = q - dt_tan * wp.min(dynamic_friction * grip / lt, 1.0)
+    return q - n * pull
+
+
 @wp.kernel
 def collide(
     p: wp.array(dtype=wp.vec3),
@@ -1245,6 +1273,12 @@ def collide(
     ``clear`` bounds the end point's distance to every collider (:func:`predict`): where
     it exceeds the local path's length plus the adhesion band, nothing on the path comes
     near the collider, and its SDFs are skipped.
+
+    A particle in contact gets friction from each collider it touches. A particle within
+    the adhesion band of a surface without touching it is held (adhesion, and the grip it
+    adds to friction) only by its nearest collider, as the density constraint's wall term
+    counts only the nearest wall: a solid behind the wall it rests on (the table under a
+    tray's bottom) does not reach through that wall.
     """
     i = wp.tid()
     w = world[i]
@@ -1253,6 +1287,9 @@ def collide(
     n_contacts = int(0)
     band = wp.max(adhesion_range, 2.0e-5)  # > the trace's tolerance
     room = clear[i]
+    nearest_s = float(1.0e30)  # least signed distance over the colliders tested
+    band_c = int(-1)  # the nearest collider whose band holds the particle without contact
+    band_s = float(1.0e30)
     for c in range(cols.world_start[w], cols.world_end[w]):
         tf = cols.pose[c]
         tf_inv = wp.transform_inverse(tf)
@@ -1291,28 +1328,19 @@ def collide(
             rest = b - q  # keep only the sliding part of the remaining motion
             q = q + rest - na * wp.min(wp.dot(rest, na), 0.0)
         s = sdf_of(cols, c, q)
+        nearest_s = wp.min(nearest_s, s[0])
         if s[0] < radius + adhesion_range:
-            touched = 1
-            n = wp.vec3(s[1], s[2], s[3])
             pen = radius - s[0]
-            if pen > 0.0:
-                q = q + n * pen
             if pen > -1.0e-6:
                 n_contacts += 1
-            # friction on the motion relative to the collider (Macklin et al. 2014, Eq. 24)
-            dx = q - a
-            dt_tan = dx - n * wp.dot(dx, n)
-            lt = wp.length(dt_tan)
-            grip = wp.max(pen, 0.0) + push[i] + adhesion[w] * adhesion_range
-            if lt > 0.0:
-                if lt < static_friction[w] * grip:
-                    q = q - dt_tan
-                else:
-                    q = q - dt_tan * wp.min(dynamic_friction[w] * grip / lt, 1.0)
-            # adhesion: pull a particle in the contact band back toward the surface
-            if pen <= 0.0 and adhesion[w] > 0.0:
-                gap = -pen
-                q = q - n * gap * adhesion_frac[w]
+            if pen > 0.0:
+                touched = 1
+                n = wp.vec3(s[1], s[2], s[3])
+                q = hold(q + n * pen, a, n, pen, push[i], adhesion[w] * adhesion_range,
+                         static_friction[w], dynamic_friction[w], 0.0)  # fmt: skip
+            elif s[0] < band_s:
+                band_c = c
+                band_s = s[0]
         if touched == 1:
             # only the correction q − b goes back to the world frame: a position's round
             # trip through a rotated frame is scaled by |quat|⁴ (1 ± ~1e-7 in float32), and
@@ -1322,6 +1350,21 @@ def collide(
             add_reaction(cols, c, new_p - pi, new_p, m, dt)
             pi = new_p
             room = -1.0  # the particle moved: its clearance no longer holds
+    if band_c >= 0 and band_s <= nearest_s:
+        # in the band of its nearest collider: friction with adhesion's grip, and adhesion
+        # pulls it back toward the surface
+        tf = cols.pose[band_c]
+        a = wp.transform_point(wp.transform_inverse(cols.pose_prev[band_c]), x_prev[i])
+        b = wp.transform_point(wp.transform_inverse(tf), pi)
+        s = sdf_of(cols, band_c, b)
+        gap = s[0] - radius  # ≥ 0 but for the rounding of the frame change
+        if gap < adhesion_range:
+            q = hold(b, a, wp.vec3(s[1], s[2], s[3]), wp.max(-gap, 0.0), push[i],
+                     adhesion[w] * adhesion_range, static_friction[w], dynamic_friction[w],
+                     wp.max(gap, 0.0) * adhesion_frac[w])  # fmt: skip
+            new_p = pi + wp.transform_vector(tf, q - b)
+            add_reaction(cols, band_c, new_p - pi, new_p, m, dt)
+            pi = new_p
     p[i] = pi
     contacts[i] = n_contacts
 
