@@ -9,7 +9,10 @@ exposing ``run(args) -> int``; a suite with a CUDA path sets ``HAS_CUDA = True``
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import io
+import json
 import sys
 from collections.abc import Sequence
 
@@ -35,9 +38,26 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         modules = [m for m in modules if getattr(m, "HAS_CUDA", False)]
         if not modules:
             raise ValueError(f"bench {args.suite} has no CUDA path; use --device cpu")
-    rc = 0
+    if args.out is None:  # a quick run is a smoke test: it leaves the tables alone
+        args.out = "leaderboard"
+        if args.quick and not args.no_write:
+            args.no_write = True
+            print("--quick: leaderboard not written (give --out to write it)", file=sys.stderr)
+    if not args.no_write:
+        from pourbench.outputs import check_output_folder
+
+        check_output_folder(args.out)  # before any work: a bad folder fails in a second
+    rc, docs = 0, []
     for module in modules:
-        rc |= module.run(args)
+        if not (args.json and len(modules) > 1):
+            rc |= module.run(args)
+            continue
+        # several suites, one JSON object: {"suites": [each suite's object, in order]}
+        with contextlib.redirect_stdout(io.StringIO()) as captured:
+            rc |= module.run(args)
+        docs.append(json.loads(captured.getvalue()))
+    if docs:
+        print(json.dumps({"suites": docs}, default=str))
     return rc
 
 
@@ -118,9 +138,17 @@ def build_parser() -> argparse.ArgumentParser:
         "bench", help="run a benchmark suite and write leaderboard/<suite>.*", **defaults
     )
     bench.add_argument("suite", choices=(*BENCH_SUITES, "all"))
-    bench.add_argument("--quick", action="store_true", help="the smallest case only")
-    bench.add_argument("--json", action="store_true", help="print one JSON object to stdout")
-    bench.add_argument("--out", default="leaderboard", help="folder for the tables")
+    bench.add_argument(
+        "--quick",
+        action="store_true",
+        help="the smallest case only; writes no table unless --out is given",
+    )
+    bench.add_argument(
+        "--json",
+        action="store_true",
+        help='print one JSON object to stdout (for "all": {"suites": [one per suite]})',
+    )
+    bench.add_argument("--out", default=None, help="folder for the tables [leaderboard]")
     bench.add_argument("--no-write", action="store_true", help="do not write leaderboard files")
     bench.add_argument(
         "--device",

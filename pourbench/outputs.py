@@ -36,6 +36,36 @@ def check_output_path(path: str | Path) -> Path:
     return p
 
 
+def check_output_folder(path: str | Path) -> Path:
+    """``path`` as a folder that exists (created if missing) and can be written.
+
+    Raises:
+        OutputPathError: the path is a file, or the folder cannot be created or written.
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise OutputPathError(f"output folder {str(p)!r} is a file; give a folder")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputPathError(f"cannot create the folder {str(p)!r}: {exc.strerror}") from exc
+    if not os.access(p, os.W_OK):
+        raise OutputPathError(f"cannot write to the folder {str(p)!r}: permission denied")
+    return p
+
+
+def write_text_atomic(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through a ``.partial`` sibling, so that a reader (or a run
+    that fails while writing) never sees half a file."""
+    out = AtomicOutput(path)
+    try:
+        out.partial.write_text(text)
+    except BaseException:
+        out.discard()
+        raise
+    return out.commit()
+
+
 class AtomicOutput:
     """A checked output path with a temporary sibling to write to (``.partial`` appended);
     :meth:`commit` moves it over the final path, :meth:`discard` removes it."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 
 import pytest
@@ -82,3 +83,44 @@ def test_display_check_passes_with_a_display_or_off_linux() -> None:
     check_display({"DISPLAY": ":0"}, "linux")
     check_display({"WAYLAND_DISPLAY": "wayland-0"}, "linux")
     check_display({}, "darwin")  # macOS and Windows open windows without these variables
+
+
+def test_bench_output_folder_is_checked_before_any_work(tmp_path, capsys) -> None:
+    a_file = tmp_path / "afile"
+    a_file.write_text("keep me")
+    assert main(["bench", "env", "--out", str(a_file)]) == 2
+    assert "is a file" in capsys.readouterr().err
+    assert a_file.read_text() == "keep me"
+
+
+def _suite(name: str, rc: int, calls: list[str]):
+    """A benchmark suite module that records its call and prints its JSON object."""
+    import types
+
+    def run(args) -> int:
+        calls.append(name)
+        if args.json:
+            print(
+                json.dumps({"suite": name, "rows": [{"out": args.out, "write": not args.no_write}]})
+            )
+        return rc
+
+    return types.SimpleNamespace(run=run)
+
+
+def test_bench_all_json_is_one_object_and_every_suite_runs(monkeypatch, capsys) -> None:
+    """``bench all --json`` prints {"suites": [...]} (one JSON document), a suite that fails
+    does not stop the next, and ``--quick`` without ``--out`` writes no table."""
+    import sys
+
+    calls: list[str] = []
+    monkeypatch.setattr("pourbench.cli.BENCH_SUITES", ("a", "b"))
+    monkeypatch.setitem(sys.modules, "pourbench.bench.a", _suite("a", 1, calls))
+    monkeypatch.setitem(sys.modules, "pourbench.bench.b", _suite("b", 0, calls))
+    assert main(["bench", "all", "--quick", "--json"]) == 1
+    assert calls == ["a", "b"]
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
+    assert [d["suite"] for d in doc["suites"]] == ["a", "b"]
+    assert doc["suites"][0]["rows"] == [{"out": "leaderboard", "write": False}]
+    assert "leaderboard not written" in captured.err

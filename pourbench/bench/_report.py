@@ -123,15 +123,16 @@ def write_report(
         body_md: the suite's tables and notes in markdown (provenance is added here).
         extra: more top-level JSON fields.
     """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    from pourbench.outputs import check_output_folder, write_text_atomic
+
+    out = check_output_folder(out)
     prov = provenance()
     gpu = accelerator(rows)
     if gpu:
         prov["accelerator"] = gpu
     doc = {"suite": suite, **prov, **(extra or {}), "rows": list(rows)}
     json_path = out / f"{suite}.json"
-    json_path.write_text(json.dumps(doc, indent=2) + "\n")
+    write_text_atomic(json_path, json.dumps(doc, indent=2) + "\n")
     md = [
         f"# {title}",
         "",
@@ -145,5 +146,5 @@ def write_report(
         "",
     ]
     md_path = out / f"{suite}.md"
-    md_path.write_text("\n".join(md))
+    write_text_atomic(md_path, "\n".join(md))
     return json_path, md_path
