@@ -16,7 +16,7 @@ import json
 import sys
 from collections.abc import Sequence
 
-from pourbench.argtypes import nonnegative_int, positive_int
+from pourbench.argtypes import nonnegative_int, positive_float, positive_int
 
 BENCH_SUITES: tuple[str, ...] = ("fluids", "teleop", "planning", "env")
 
@@ -164,7 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ev.add_argument("--policy", default="pd", choices=("pd", "random"))
     ev.add_argument("--liquid", default="water", help="liquid profile name")
-    ev.add_argument("--target-g", type=float, default=100.0, help="target amount, g")
+    ev.add_argument("--target-g", type=positive_float, default=100.0, help="target amount, g")
     ev.add_argument("--episodes", type=positive_int, default=10, help="episodes to run")
     ev.add_argument("--seed", type=nonnegative_int, default=0, help="first episode's seed")
     ev.add_argument("--containers", default="training", choices=("training", "novel"))

@@ -51,6 +51,9 @@ def load_robot(name: str) -> mujoco.MjModel:
 
 TABLE_HEIGHT = 0.75
 """Height of the table top, m (mocap and Panda scenes)."""
+TABLE_HALF_XY = (0.4, 0.5)
+"""Half extents (m) of the table top of the robot-free scene, centred under the receiving
+container."""
 MOVO_TABLE_HEIGHT = 0.6
 """Height of the table in front of the Movo, m: below anything its grippers hold at home."""
 
@@ -248,7 +251,7 @@ def build_pour_scene(
     if robot is None:
         spec = mujoco.MjSpec()
         spec.modelname = f"pour_{pouring}_{receiving}"
-        _add_environment(spec, (0.0, 0.0), (0.4, 0.5))
+        _add_environment(spec, (0.0, 0.0), TABLE_HALF_XY)
         world = spec.worldbody
         rbody = add_container_body(
             spec, world, recv, name="receiving", pos=(0, 0, TABLE_HEIGHT), max_error=max_error

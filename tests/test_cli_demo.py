@@ -39,6 +39,7 @@ def test_demo_unknown_liquid_is_a_clear_error(capsys) -> None:
         (["demo", "--mass-g", "inf"], "--mass-g"),
         (["demo", "--device", "gpu"], "--device"),
         (["eval", "--episodes", "0"], "--episodes"),
+        (["eval", "--target-g", "nan"], "--target-g"),
         (["eval", "--seed", "-1"], "--seed"),
         (["view", "scene", "--robot", "r2d2"], "--robot"),
     ],

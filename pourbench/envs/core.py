@@ -27,7 +27,7 @@ from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, as_actions
 from pourbench.envs.curriculum import Lesson, load_curriculum
 from pourbench.envs.observation import GRAVITY, WeightFilter
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
-from pourbench.errors import CapacityError, UnknownNameError, check_finite
+from pourbench.errors import CapacityError, InvalidParameterError, UnknownNameError, check_finite
 from pourbench.fluids import (
     LiquidProfile,
     MujocoCoupling,
@@ -38,7 +38,7 @@ from pourbench.fluids import (
     liquid_profile,
 )
 from pourbench.fluids.solver import container_lattice
-from pourbench.scene import TABLE_HEIGHT, body_clearance, build_pour_scene
+from pourbench.scene import TABLE_HALF_XY, TABLE_HEIGHT, body_clearance, build_pour_scene
 
 CONTAINER_SETS: tuple[str, ...] = ("training", "novel")
 OBS_SIZE = 12
@@ -107,6 +107,48 @@ class PourConfig:
     curriculum: str | None = None
     solver: SolverConfig | None = None
 
+    def __post_init__(self) -> None:
+        positive = ("control_hz", "pour_tilt", "upright_tilt", "sensor_rate_hz", "sensor_cutoff_hz")
+        for name in positive:
+            if check_finite(name, getattr(self, name)) <= 0:
+                raise InvalidParameterError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("tolerance_g", "stream_stop_g", "settle_time", "sensor_noise_n"):
+            check_finite(name, getattr(self, name), minimum=0.0)
+        if not isinstance(self.max_steps, int | np.integer) or self.max_steps < 1:
+            raise InvalidParameterError(
+                f"max_steps must be an integer >= 1, got {self.max_steps!r}"
+            )
+        if self.upright_tilt >= self.pour_tilt:
+            raise InvalidParameterError(
+                f"upright_tilt ({self.upright_tilt!r} rad) must be below pour_tilt "
+                f"({self.pour_tilt!r} rad)"
+            )
+        if self.sensor_cutoff_hz >= self.sensor_rate_hz / 2:
+            raise InvalidParameterError(
+                f"sensor_cutoff_hz={self.sensor_cutoff_hz!r} must be below half of "
+                f"sensor_rate_hz={self.sensor_rate_hz!r} (Nyquist)"
+            )
+        for name, low in (
+            ("target_range_g", 1e-9),
+            ("extra_range_g", 0.0),
+            ("start_x", None),
+            ("start_y", None),
+            ("start_height", None),
+        ):
+            _check_range(name, getattr(self, name), low)
+
+
+def _check_range(name: str, value: object, minimum: float | None) -> None:
+    """``value`` must be (low, high), finite, low <= high, low >= ``minimum``."""
+    try:
+        low, high = (float(v) for v in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError) as exc:
+        raise InvalidParameterError(f"{name} must be (low, high), got {value!r}") from exc
+    check_finite(name, low, minimum=minimum)
+    check_finite(name, high)
+    if low > high:
+        raise InvalidParameterError(f"{name} must be (low, high) with low <= high, got {value!r}")
+
 
 @dataclass
 class WorldState:
@@ -153,6 +195,11 @@ class PourBatch:
         self.set_lesson(cfg.lesson)
         scfg = cfg.solver or default_solver_config()
         self.solver_config = scfg
+        if cfg.control_hz * scfg.dt > 1.0 + 1e-9:
+            raise InvalidParameterError(
+                f"control_hz={cfg.control_hz:g} is above the liquid solver's rate "
+                f"({1.0 / scfg.dt:g} Hz): an environment step is at least one solver step"
+            )
         self.substeps = max(1, round(1.0 / (cfg.control_hz * scfg.dt)))
         self.control_dt = self.substeps * scfg.dt
         self.candidates = container_names(cfg.container_set)
@@ -254,15 +301,29 @@ class PourBatch:
             liquid = self.lessons[self.lesson].sample(rng)
         else:
             liquid = _known_liquid(liq)
-        # container
+        # container: one that holds the drawn range's largest target with room to pour,
+        # and in any case the amount asked for
         name = opts.get("container")
+        key = "initial_g" if "initial_g" in opts else "target_g"
+        asked = opts.get(key)
         if name is None:
-            fits = [
-                c
-                for c in self.candidates
-                if self.capacity_g(c, liquid.density) * 0.85
-                >= cfg.target_range_g[1] + cfg.extra_range_g[0]
-            ] or list(self.candidates)
+
+            def holds(c: str, grams: float) -> bool:
+                return self.capacity_g(c, liquid.density) * 0.85 >= grams
+
+            need = cfg.target_range_g[1] + cfg.extra_range_g[0]
+            fits = [c for c in self.candidates if holds(c, need)] or list(self.candidates)
+            if asked is not None and _finite_number(asked):
+                fits = [c for c in fits if holds(c, asked)] or [
+                    c for c in self.candidates if holds(c, asked)
+                ]
+                if not fits:
+                    most = max(self.capacity_g(c, liquid.density) for c in self.candidates)
+                    raise CapacityError(
+                        f"{key}={float(asked):g} g is more than any {cfg.container_set} "
+                        f"pouring container holds: the largest holds {0.85 * most:.0f} g of "
+                        f"{liquid.name} at {liquid.density:.0f} kg/m^3 (85 % of its capacity)"
+                    )
             name = fits[int(rng.integers(len(fits)))]
         elif name not in self.candidates:
             raise UnknownNameError("pouring container", name, self.candidates)
@@ -271,6 +332,12 @@ class PourBatch:
         target = float(rng.uniform(*cfg.target_range_g)) if target is None else float(target)
         if not math.isfinite(target) or target <= 0:
             raise ValueError(f"target_g must be a positive number of grams, got {target!r}")
+        particle_g = liquid.density * self.solver_config.spacing**3 * 1e3
+        if target < particle_g:
+            raise ValueError(
+                f"target_g={target:g} g is less than one particle of {liquid.name} "
+                f"({particle_g:.3g} g at {self.solver_config.spacing * 1e3:g} mm spacing)"
+            )
         cap = 0.85 * self.capacity_g(name, liquid.density)
         holds = (
             f"container {name!r} holds {cap:.0f} g of {liquid.name} at "
@@ -300,6 +367,12 @@ class PourBatch:
                 f"base relative to the receiving container's, m), got {opts.get('start')!r}"
             )
         base = self.target_pos + start
+        if not (np.all(np.abs(base[:2]) <= TABLE_HALF_XY) and 0.0 <= start[2] <= MAX_START_HEIGHT):
+            raise ValueError(
+                f"start {start.tolist()} puts the pouring container's base off the table "
+                f"(|x|, |y| of the base within {TABLE_HALF_XY} m of the table's centre) or "
+                f"outside 0-{MAX_START_HEIGHT} m above the receiving container's base"
+            )
         # MuJoCo world
         d = self.datas[world]
         mujoco.mj_resetData(self.model, d)
@@ -488,6 +561,15 @@ class PourBatch:
 
 
 OBS_BOUND = 1e4
+MAX_START_HEIGHT = 0.5
+"""Highest start of the pouring container's base above the receiving one's, m."""
+
+
+def _finite_number(value: object) -> bool:
+    try:
+        return math.isfinite(float(value))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
 
 
 def _known_liquid(liquid: str | LiquidProfile) -> LiquidProfile:
