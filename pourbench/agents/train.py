@@ -2,17 +2,26 @@
 it with a random policy on the same evaluation episodes.
 
 ``python -m pourbench.agents.train --budget-s 900 --liquid water --target-g 100``
+
+The model is saved to ``<out>/model.zip`` every ``--checkpoint-s`` seconds and at the end
+(through a temporary file, so an interrupted run keeps its last checkpoint); ``--resume``
+continues from it, step counter included. A run into a folder that already holds a model
+without ``--resume`` is refused rather than overwriting it.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+
+from pourbench.errors import InvalidParameterError, check_finite
 
 
 @dataclass
@@ -29,6 +38,8 @@ class TrainArgs:
         eval_episodes: evaluation episodes per policy.
         threads: torch threads.
         out: folder for the model and the result JSON.
+        checkpoint_s: seconds between checkpoints of the model.
+        resume: continue from ``<out>/model.zip``.
     """
 
     budget_s: float = 900.0
@@ -40,10 +51,42 @@ class TrainArgs:
     eval_episodes: int = 10
     threads: int = 1
     out: str = "runs/ppo_pour"
+    checkpoint_s: float = 60.0
+    resume: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("budget_s", "target_g", "checkpoint_s"):
+            if check_finite(name, getattr(self, name)) <= 0:
+                raise InvalidParameterError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("num_envs", "n_steps", "eval_episodes", "threads"):
+            if getattr(self, name) < 1:
+                raise InvalidParameterError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if self.seed < 0:
+            raise InvalidParameterError(f"seed must be >= 0, got {self.seed!r}")
+
+
+def _save(model, path: Path) -> None:
+    """``model`` to ``path`` (``.zip``) through a temporary file."""
+    partial = path.with_name(path.stem + ".partial.zip")
+    model.save(partial)
+    os.replace(partial, path)
 
 
 def train(args: TrainArgs) -> dict:
     """Train for ``args.budget_s`` seconds and evaluate PPO and a random policy."""
+    from pourbench.envs.core import _known_liquid
+    from pourbench.outputs import OutputPathError, check_output_folder, write_text_atomic
+
+    _known_liquid(args.liquid)  # before any work: a typo fails in a second
+    out = check_output_folder(args.out)
+    model_path = out / "model.zip"
+    if args.resume and not model_path.exists():
+        raise OutputPathError(f"--resume: no model to resume from at {str(model_path)!r}")
+    if not args.resume and model_path.exists():
+        raise OutputPathError(
+            f"{str(model_path)!r} exists; pass --resume to continue it or another --out"
+        )
+
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
@@ -55,31 +98,41 @@ def train(args: TrainArgs) -> dict:
     target = (args.target_g, args.target_g)
     venv = SB3PourVecEnv(args.num_envs, seed=args.seed, liquid=args.liquid, target_range_g=target)
 
-    class Budget(BaseCallback):
+    class BudgetAndCheckpoints(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
-            self.t0 = time.perf_counter()
+            self.t0 = self.saved = time.perf_counter()
 
         def _on_step(self) -> bool:
-            return time.perf_counter() - self.t0 < args.budget_s
+            now = time.perf_counter()
+            if now - self.saved >= args.checkpoint_s:
+                _save(self.model, model_path)
+                self.saved = now
+            return now - self.t0 < args.budget_s
 
-    model = PPO(
-        "MlpPolicy",
-        venv,
-        n_steps=args.n_steps,
-        batch_size=64,
-        n_epochs=10,
-        gamma=0.995,
-        seed=args.seed,
-        device="cpu",
-        verbose=1,
-    )
+    if args.resume:
+        model = PPO.load(model_path, env=venv, device="cpu")
+        print(f"resuming {model_path} at {model.num_timesteps} timesteps")
+    else:
+        model = PPO(
+            "MlpPolicy",
+            venv,
+            n_steps=args.n_steps,
+            batch_size=min(64, args.n_steps * args.num_envs),
+            n_epochs=10,
+            gamma=0.995,
+            seed=args.seed,
+            device="cpu",
+            verbose=1,
+        )
     t0 = time.perf_counter()
-    model.learn(total_timesteps=10**9, callback=Budget())
+    model.learn(
+        total_timesteps=10**9,
+        callback=BudgetAndCheckpoints(),
+        reset_num_timesteps=not args.resume,
+    )
     train_s = time.perf_counter() - t0
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    model.save(out / "model")
+    _save(model, model_path)
 
     def ppo_policy(obs: np.ndarray, new: bool) -> np.ndarray:
         return model.predict(obs, deterministic=True)[0]
@@ -96,17 +149,26 @@ def train(args: TrainArgs) -> dict:
         "ppo": ppo.summary(),
         "random": rnd.summary(),
     }
-    (out / "result.json").write_text(json.dumps(result, indent=2) + "\n")
+    write_text_atomic(out / "result.json", json.dumps(result, indent=2) + "\n")
     return result
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     for name, value in asdict(TrainArgs()).items():
-        parser.add_argument(f"--{name.replace('_', '-')}", type=type(value), default=value)
-    result = train(TrainArgs(**vars(parser.parse_args())))
+        flag = f"--{name.replace('_', '-')}"
+        if isinstance(value, bool):
+            parser.add_argument(flag, action="store_true")
+        else:
+            parser.add_argument(flag, type=type(value), default=value)
+    try:
+        result = train(TrainArgs(**vars(parser.parse_args(argv))))
+    except ValueError as exc:  # bad input: one clear line, no traceback
+        print(f"pourbench.agents.train: error: {exc}", file=sys.stderr)
+        return 2
     print(json.dumps(result, indent=2))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
