@@ -288,11 +288,14 @@ def test_rerun_recording(tmp_path) -> None:
     rec.save(empty)
     rec.flush()
     path = tmp_path / "pour.rrd"
+    path.write_bytes(b"an earlier recording")
     env = PourEnv(record_path=str(path), max_steps=5)
     env.reset(seed=0)
     env.step(np.array([1.0, 1.0]))
     n = env.batch.solver.num_particles
+    assert path.read_bytes() == b"an earlier recording"  # kept until this one is complete
     env.close()
+    assert not path.with_name("pour.rrd.partial").exists()
     # two frames of particle positions (3 float32 each) beyond an empty recording
     assert path.stat().st_size > empty.stat().st_size + 2 * 12 * n
 

@@ -78,8 +78,10 @@ class PourEnv(gym.Env):
 
     Args:
         render_mode: None or "rgb_array" (MuJoCo offscreen renderer, particles as spheres).
-        record_path: if given, a rerun ``.rrd`` recording of the liquid and containers is
-            written there, one frame per reset and step.
+        record_path: if given, a rerun ``.rrd`` recording of the liquid and containers, one
+            frame per reset and step. It is written to ``<record_path>.partial`` while the
+            environment runs and moved to ``record_path`` by :meth:`close`, so an earlier
+            recording there survives until this one is complete.
         **kwargs: fields of :class:`~pourbench.envs.core.PourConfig` (e.g. ``liquid="water"``,
             ``action_mode="free"``, ``container_set="novel"``, ``solver=SolverConfig(...)``).
     """
@@ -102,7 +104,7 @@ class PourEnv(gym.Env):
         if record_path is not None:
             from pourbench.fluids.record import FluidRecorder
 
-            self._recorder = FluidRecorder(record_path, self.batch.solver, atomic=False)
+            self._recorder = FluidRecorder(record_path, self.batch.solver)
 
     def set_lesson(self, k: int) -> None:
         """Draw liquids from curriculum lesson ``k`` at later resets (when ``liquid`` is None)."""

@@ -44,10 +44,10 @@ def speed_colors(v: np.ndarray, vmax: float = 1.0) -> np.ndarray:
 class FluidRecorder:
     """Writes one world of a solver to a rerun ``.rrd`` file, frame by frame.
 
-    With ``atomic`` (a run that records once, such as the demo) frames go to
+    With ``atomic`` (the default: the demo, an environment's recording) frames go to
     ``<path>.partial`` and :meth:`close` moves the finished recording to ``path``, so a run
-    that fails first leaves an earlier recording there untouched; without it (an
-    environment recording its episodes as they run) frames go straight to ``path``.
+    that fails first leaves an earlier recording there untouched; without it frames go
+    straight to ``path``.
 
     Raises:
         OutputPathError: ``path`` is a folder or its folder cannot be written.
