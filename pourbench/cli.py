@@ -47,17 +47,18 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from pourbench.outputs import check_output_folder
 
         check_output_folder(args.out)  # before any work: a bad folder fails in a second
+    if not (args.json and len(modules) > 1):
+        rc = 0
+        for module in modules:
+            rc |= module.run(args)
+        return rc
+    # several suites, one JSON object: {"suites": [each suite's object, in order]}
     rc, docs = 0, []
     for module in modules:
-        if not (args.json and len(modules) > 1):
-            rc |= module.run(args)
-            continue
-        # several suites, one JSON object: {"suites": [each suite's object, in order]}
         with contextlib.redirect_stdout(io.StringIO()) as captured:
             rc |= module.run(args)
         docs.append(json.loads(captured.getvalue()))
-    if docs:
-        print(json.dumps({"suites": docs}, default=str))
+    print(json.dumps({"suites": docs}, default=str))
     return rc
 
 

@@ -27,12 +27,7 @@ def check_output_path(path: str | Path) -> Path:
     p = Path(path)
     if p.is_dir():
         raise OutputPathError(f"output path {str(p)!r} is a folder; give a file name")
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputPathError(f"cannot create the folder of {str(p)!r}: {exc.strerror}") from exc
-    if not os.access(p.parent, os.W_OK):
-        raise OutputPathError(f"cannot write to the folder of {str(p)!r}: permission denied")
+    check_output_folder(p.parent)
     return p
 
 

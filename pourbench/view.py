@@ -140,14 +140,19 @@ def record(model: mujoco.MjModel, data: mujoco.MjData, path: str | Path) -> Path
     out = AtomicOutput(path)
     rec = rr.RecordingStream("pourbench")
     rec.save(str(out.partial))
-    rec.log("scene", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    for entity, verts, tris, rgba in world_meshes(model, data):
-        colour = (np.clip(rgba, 0, 1) * 255).astype(np.uint8)
-        rec.log(
-            entity,
-            rr.Mesh3D(vertex_positions=verts, triangle_indices=tris, albedo_factor=colour),
-            static=True,
-        )
-    rec.flush()
+    try:
+        rec.log("scene", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        for entity, verts, tris, rgba in world_meshes(model, data):
+            colour = (np.clip(rgba, 0, 1) * 255).astype(np.uint8)
+            rec.log(
+                entity,
+                rr.Mesh3D(vertex_positions=verts, triangle_indices=tris, albedo_factor=colour),
+                static=True,
+            )
+        rec.flush()
+    except BaseException:  # a failed recording leaves an earlier one at ``path`` as it was
+        rec.disconnect()
+        out.discard()
+        raise
     rec.disconnect()
     return out.commit()

@@ -305,22 +305,22 @@ class PourBatch:
         # and in any case the amount asked for
         name = opts.get("container")
         key = "initial_g" if "initial_g" in opts else "target_g"
-        asked = opts.get(key)
+        asked = None if opts.get(key) is None else check_finite(key, opts[key])
         if name is None:
 
-            def holds(c: str, grams: float) -> bool:
+            def fits_in(c: str, grams: float) -> bool:
                 return self.capacity_g(c, liquid.density) * 0.85 >= grams
 
             need = cfg.target_range_g[1] + cfg.extra_range_g[0]
-            fits = [c for c in self.candidates if holds(c, need)] or list(self.candidates)
-            if asked is not None and _finite_number(asked):
-                fits = [c for c in fits if holds(c, asked)] or [
-                    c for c in self.candidates if holds(c, asked)
+            fits = [c for c in self.candidates if fits_in(c, need)] or list(self.candidates)
+            if asked is not None:
+                fits = [c for c in fits if fits_in(c, asked)] or [
+                    c for c in self.candidates if fits_in(c, asked)
                 ]
                 if not fits:
                     most = max(self.capacity_g(c, liquid.density) for c in self.candidates)
                     raise CapacityError(
-                        f"{key}={float(asked):g} g is more than any {cfg.container_set} "
+                        f"{key}={asked:g} g is more than any {cfg.container_set} "
                         f"pouring container holds: the largest holds {0.85 * most:.0f} g of "
                         f"{liquid.name} at {liquid.density:.0f} kg/m^3 (85 % of its capacity)"
                     )
@@ -563,13 +563,6 @@ class PourBatch:
 OBS_BOUND = 1e4
 MAX_START_HEIGHT = 0.5
 """Highest start of the pouring container's base above the receiving one's, m."""
-
-
-def _finite_number(value: object) -> bool:
-    try:
-        return math.isfinite(float(value))  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        return False
 
 
 def _known_liquid(liquid: str | LiquidProfile) -> LiquidProfile:

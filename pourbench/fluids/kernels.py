@@ -1287,7 +1287,7 @@ def collide(
     n_contacts = int(0)
     band = wp.max(adhesion_range, 2.0e-5)  # > the trace's tolerance
     room = clear[i]
-    nearest_s = float(1.0e30)  # least signed distance over the colliders tested
+    pressed = int(0)  # in contact with some collider
     band_c = int(-1)  # the nearest collider whose band holds the particle without contact
     band_s = float(1.0e30)
     for c in range(cols.world_start[w], cols.world_end[w]):
@@ -1328,13 +1328,13 @@ def collide(
             rest = b - q  # keep only the sliding part of the remaining motion
             q = q + rest - na * wp.min(wp.dot(rest, na), 0.0)
         s = sdf_of(cols, c, q)
-        nearest_s = wp.min(nearest_s, s[0])
         if s[0] < radius + adhesion_range:
             pen = radius - s[0]
             if pen > -1.0e-6:
                 n_contacts += 1
             if pen > 0.0:
                 touched = 1
+                pressed = 1
                 n = wp.vec3(s[1], s[2], s[3])
                 q = hold(q + n * pen, a, n, pen, push[i], adhesion[w] * adhesion_range,
                          static_friction[w], dynamic_friction[w], 0.0)  # fmt: skip
@@ -1350,9 +1350,9 @@ def collide(
             add_reaction(cols, c, new_p - pi, new_p, m, dt)
             pi = new_p
             room = -1.0  # the particle moved: its clearance no longer holds
-    if band_c >= 0 and band_s <= nearest_s:
-        # in the band of its nearest collider: friction with adhesion's grip, and adhesion
-        # pulls it back toward the surface
+    if band_c >= 0 and pressed == 0:
+        # in the band of its nearest collider and touching none: friction with adhesion's
+        # grip, and adhesion pulls it back toward the surface
         tf = cols.pose[band_c]
         a = wp.transform_point(wp.transform_inverse(cols.pose_prev[band_c]), x_prev[i])
         b = wp.transform_point(wp.transform_inverse(tf), pi)

@@ -135,9 +135,12 @@ def floating_box(
     In hydrostatic equilibrium the pressure at the tank floor is the same under the box and
     beside it, so the water column beside it exceeds the column under it by the box's mass
     over its footprint (``column_difference`` = ``archimedes``), a measure of masses that
-    the liquid's compression does not change. ``draft`` is geometric: where the liquid packs
-    denser than at rest (without the density constraint's wall term, against every wall;
-    with it, still at the box's edges and corners), the box sits deeper than ``archimedes``.
+    the liquid's compression does not change. The settled particles form a jammed packing
+    that carries part of the box's weight sideways, so it comes out 1-2 mm short, by an
+    amount that varies with the fill (docs/contact.md). ``draft`` is geometric: where the
+    liquid packs denser than at rest (without the density constraint's wall term, against
+    every wall; with it, still at the box's edges and corners), the box sits deeper than
+    ``archimedes``.
     """
     import mujoco
 
