@@ -1,0 +1,155 @@
+"""Adhesion, cohesion and surface tension, each checked by what it does to liquid.
+
+- Adhesion: a film of particles under a ceiling hangs where adhesion beats gravity, at the gap
+  the documented rate law predicts, and the ceiling's body carries the film's weight.
+- Cohesion: a free cube of liquid in zero gravity stays together, which the tensile term's
+  push alone would scatter.
+- Surface tension: the same cohesive cube rounds into a ball.
+
+Table 6.2's water does not hold together as a free drop (a strict xfail; docs/contact.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pourbench.fluids.params import liquid_profile
+from pourbench.fluids.solver import PBFSolver, SolverConfig
+
+G = 9.81
+CFG = SolverConfig(reorder_every=0)
+SECOND = round(1.0 / CFG.dt)
+CEILING_Z = 0.09  # the ceiling's lower face, m
+# Table 6.2's liquids from the least to the most adhesive (adhesion 0.0001 … 0.1)
+BY_ADHESION = ("water", "oil", "glycerine", "honey", "ketchup")
+
+
+@pytest.fixture(scope="module")
+def hanging() -> dict[str, tuple[int, float, float, float]]:
+    """A 10 × 10 film of each Table 6.2 liquid touching the underside of a box, one second
+    later: per liquid (particles still hanging, their mean gap below contact in m, the
+    ceiling's vertical reaction in N, one particle's mass in kg)."""
+    solver = PBFSolver(len(BY_ADHESION), CFG)
+    r, d = CFG.radius, CFG.spacing
+    grid = (np.arange(10) - 4.5) * d
+    film = np.array([[x, y, CEILING_Z - r] for x in grid for y in grid])
+    for w, name in enumerate(BY_ADHESION):
+        solver.set_liquid(w, name)
+        body = solver.new_body_slot()
+        solver.add_collider(
+            w, "box", [0.05, 0.05, 0.01], pose=[0, 0, CEILING_Z + 0.01, 0, 0, 0, 1], body=body
+        )
+        solver.add_particles(w, film)
+    solver.step(SECOND)
+    z, worlds = solver.positions()[:, 2], solver.worlds()
+    force, _ = solver.body_wrenches()
+    out = {}
+    for w, name in enumerate(BY_ADHESION):
+        zw = z[worlds == w]
+        held = zw > CEILING_Z - 0.02  # the rest have fallen 1.2 m by now
+        gap = float(np.mean(CEILING_Z - r - zw[held])) if held.any() else float("nan")
+        out[name] = (int(held.sum()), gap, float(force[w, 2]), solver.particle_mass(w))
+    out["_fractions"] = solver.step_fractions()["adhesion_frac"]
+    return out
+
+
+def test_adhesion_hangs_a_film_where_it_beats_gravity(hanging) -> None:
+    """Adhesion closes a fraction f of a particle's gap to a surface each step (within half a
+    spacing of it). Against gravity's g dt² a step, a hanging particle rests where the two
+    balance, at the gap g dt² (1 − f) / f, and falls where that exceeds the band: Table 6.2's
+    water, oil and glycerine (f ≤ 0.05, a balance 3.2 mm or more below contact, band 2.5 mm)
+    drip off the ceiling, honey (f = 0.25) and ketchup (f = 1) hang at the predicted gap
+    (0.51 and 0 mm; measured 0.511 and 0)."""
+    frac = hanging["_fractions"]
+    band = 0.5 * CFG.spacing
+    fall = G * CFG.dt**2
+    for w, name in enumerate(BY_ADHESION):
+        held, gap, _, _ = hanging[name]
+        balance = fall * (1.0 - frac[w]) / frac[w] if frac[w] > 0 else np.inf
+        if balance > band:
+            assert held == 0, f"{name}: {held} particles hang above a {balance * 1e3:.1f} mm balance"
+        else:
+            assert held == 100, f"{name}: only {held} of 100 particles hang"
+            assert gap == pytest.approx(balance, abs=0.02e-3), f"{name}: gap {gap * 1e3:.3f} mm"
+    assert [hanging[n][0] for n in BY_ADHESION] == [0, 0, 0, 100, 100]
+
+
+def test_the_ceiling_carries_the_hanging_films_weight(hanging) -> None:
+    """The pull that holds a film up is a force on the ceiling's body: the liquid's reaction
+    pulls it down by the hanging mass times g (within 0.5 %; measured within 0.01 %)."""
+    for name in BY_ADHESION:
+        held, _, fz, mass = hanging[name]
+        assert fz == pytest.approx(-held * mass * G, rel=0.005, abs=1e-6), name
+
+
+@pytest.fixture(scope="module")
+def blobs() -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """An 8 × 8 × 8 cube of liquid at rest spacing, in zero gravity with no walls, with and
+    without cohesion and surface tension: per variant (start, after 1 s) positions."""
+    cfg = SolverConfig(reorder_every=0, gravity=(0.0, 0.0, 0.0))
+    g = (np.arange(8) - 3.5) * cfg.spacing
+    cube = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    variants = {
+        "neither": dict(cohesion=0.0, surfaceTension=0.0),
+        "cohesion": dict(cohesion=0.03, surfaceTension=0.0),
+        "both": dict(cohesion=0.03, surfaceTension=0.01),
+        "water": {},  # Table 6.2's: cohesion 0.001, surface tension 0.005
+    }
+    solver = PBFSolver(len(variants), cfg)
+    for w, flex in enumerate(variants.values()):
+        solver.set_liquid(w, liquid_profile("water").replace(**flex))
+        solver.add_particles(w, cube + [w * 1.0, 0.0, 0.0])  # worlds apart for the eye only
+    solver.step(SECOND)
+    x, worlds = solver.positions(), solver.worlds()
+    return {name: (cube, x[worlds == w]) for w, name in enumerate(variants)}
+
+
+def _radii(points: np.ndarray) -> np.ndarray:
+    """Distances from the blob's centre of mass, sorted, over the radius of a ball of the same
+    volume (one spacing³ a particle)."""
+    ball = (len(points) * CFG.spacing**3 * 3.0 / (4.0 * np.pi)) ** (1.0 / 3.0)
+    return np.sort(np.linalg.norm(points - points.mean(0), axis=1)) / ball
+
+
+def test_cohesion_holds_a_free_blob_together(blobs) -> None:
+    """Without cohesion nothing holds a free blob: the tensile term (s_corr), which pushes
+    neighbours apart at any distance below h, scatters it (rms radius from 0.80 to 3.9
+    ball radii in a second). With RRS Water's cohesion (0.03) its rms radius stays within 3 %
+    of the start and no particle strays beyond 1.4 ball radii (the cube's corners reach
+    1.26; measured 0.788 and 1.28)."""
+    start = np.sqrt(np.mean(_radii(blobs["cohesion"][0]) ** 2))
+    held = _radii(blobs["cohesion"][1])
+    scattered = _radii(blobs["neither"][1])
+    assert np.sqrt(np.mean(held**2)) == pytest.approx(start, rel=0.03)
+    assert held[-1] <= 1.4, f"a particle strayed to {held[-1]:.2f} ball radii"
+    assert np.sqrt(np.mean(scattered**2)) > 2.0 * start, "the blob held without cohesion"
+
+
+def test_surface_tension_rounds_a_cohesive_cube_into_a_ball(blobs) -> None:
+    """Surface tension pulls a surface toward less area: the cube becomes a ball. Its outermost
+    5 % of particles start at 1.16 ball radii (corners and edges); with cohesion alone they
+    are still at 1.11 after a second (the corners persist), with surface tension 0.01 added
+    at 1.01 (a ball's outer shell)."""
+    n = len(blobs["both"][0]) // 20
+
+    def outer(points: np.ndarray) -> float:
+        return float(np.mean(_radii(points)[-n:]))
+
+    assert outer(blobs["cohesion"][0]) > 1.15
+    assert outer(blobs["cohesion"][1]) > 1.08, "cohesion alone rounded the cube"
+    assert outer(blobs["both"][1]) < 1.03, f"outer shell at {outer(blobs['both'][1]):.3f}"
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="Table 6.2 water scatters as a free drop: its surface tension's curvature term "
+    "pushes a flat surface outward (0.5 m/s²) harder than its cohesion pulls it in (0.1 m/s²), "
+    "on top of the tensile term's push; docs/contact.md",
+)
+def test_table_6_2_water_holds_together_as_a_free_drop(blobs) -> None:
+    """Water in zero gravity stays one drop. Table 6.2's water profile, as the cube above:
+    its rms radius grows from 0.80 to 3.9 ball radii in a second (RRS Water's, with cohesion
+    0.03, stays at 0.79)."""
+    start, end = (np.sqrt(np.mean(_radii(p) ** 2)) for p in blobs["water"])
+    assert end <= 1.2 * start, f"rms radius {start:.2f} → {end:.2f} ball radii"
