@@ -1,10 +1,14 @@
-"""Value types for the console script's options: a NaN, infinite, zero or negative number is
-refused while the arguments are parsed, with the option's name, before any work starts."""
+"""Value types for the console script's options: a NaN, infinite, zero or negative number, or a
+policy that is neither known nor a file, is refused while the arguments are parsed, with the
+option's name, before any work starts."""
 
 from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
+
+BUILTIN_POLICIES = ("pd", "random")
 
 
 def positive_float(text: str) -> float:
@@ -36,3 +40,12 @@ def positive_int(text: str) -> int:
 def nonnegative_int(text: str) -> int:
     """A whole number >= 0 (seeds)."""
     return _integer(text, 0)
+
+
+def policy_name(text: str) -> str:
+    """A built-in policy ("pd", "random") or the path of an existing saved model."""
+    if text in BUILTIN_POLICIES or Path(text).is_file():
+        return text
+    raise argparse.ArgumentTypeError(
+        f"{text!r} is neither a policy {list(BUILTIN_POLICIES)} nor a saved model file"
+    )

@@ -16,7 +16,7 @@ import json
 import sys
 from collections.abc import Sequence
 
-from pourbench.argtypes import nonnegative_int, positive_float, positive_int
+from pourbench.argtypes import nonnegative_int, policy_name, positive_float, positive_int
 
 BENCH_SUITES: tuple[str, ...] = ("fluids", "teleop", "planning", "env")
 
@@ -163,7 +163,12 @@ def build_parser() -> argparse.ArgumentParser:
     ev = sub.add_parser(
         "eval", help="pour with a policy on Pour-v0; print error, spill, success", **defaults
     )
-    ev.add_argument("--policy", default="pd", choices=("pd", "random"))
+    ev.add_argument(
+        "--policy",
+        type=policy_name,
+        default="pd",
+        help="pd, random, or a model saved by training (e.g. runs/ppo_pour/model.zip)",
+    )
     ev.add_argument("--liquid", default="water", help="liquid profile name")
     ev.add_argument("--target-g", type=positive_float, default=100.0, help="target amount, g")
     ev.add_argument("--episodes", type=positive_int, default=10, help="episodes to run")

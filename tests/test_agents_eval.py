@@ -1,0 +1,81 @@
+"""Evaluating a saved policy: a model written by training pours through ``pourbench eval`` with
+the actions it takes in memory; files that are not Pour-v0 models are refused in one line."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from sb3_contrib import RecurrentPPO
+from stable_baselines3 import PPO
+
+from pourbench.agents.evaluate import load_sb3_policy
+from pourbench.agents.sb3 import SB3PourVecEnv
+from pourbench.cli import main
+
+
+@pytest.fixture(scope="module")
+def pour_env() -> SB3PourVecEnv:
+    return SB3PourVecEnv(1, seed=0, liquid="water")
+
+
+def _observations(env: SB3PourVecEnv, n: int) -> np.ndarray:
+    space = env.observation_space
+    space.seed(3)
+    return np.stack([space.sample() for _ in range(n)])
+
+
+def test_a_saved_ppo_model_acts_as_it_did_in_memory(tmp_path, pour_env) -> None:
+    model = PPO("MlpPolicy", pour_env, n_steps=16, batch_size=16, seed=1, device="cpu")
+    model.learn(16)
+    path = tmp_path / "model.zip"
+    model.save(path)
+    act = load_sb3_policy(path)
+    for obs in _observations(pour_env, 8):
+        np.testing.assert_array_equal(act(obs, False), model.predict(obs, deterministic=True)[0])
+
+
+def test_a_saved_recurrent_model_keeps_its_memory_within_an_episode(tmp_path, pour_env) -> None:
+    """An LSTM policy's actions depend on what it saw earlier in the episode; the loaded policy
+    carries its state from step to step and clears it when a new episode starts."""
+    model = RecurrentPPO("MlpLstmPolicy", pour_env, n_steps=16, batch_size=16, seed=1)
+    path = tmp_path / "lstm.zip"
+    model.save(path)
+    act = load_sb3_policy(path)
+    obs = _observations(pour_env, 6)
+    state, expected = None, []
+    for k, o in enumerate(obs):
+        a, state = model.predict(
+            o, state=state, episode_start=np.array([k == 0]), deterministic=True
+        )
+        expected.append(a)
+    for _ in range(2):  # the second pass starts a new episode: the same actions again
+        got = [act(o, k == 0) for k, o in enumerate(obs)]
+        np.testing.assert_allclose(np.array(got), np.array(expected), rtol=0, atol=1e-6)
+    fresh = [act(o, True) for o in obs]  # no memory carried: differs from the sequence
+    assert not np.allclose(np.array(fresh[1:]), np.array(expected[1:]))
+
+
+def test_pourbench_eval_pours_with_a_saved_model(tmp_path, pour_env, capsys) -> None:
+    model = PPO("MlpPolicy", pour_env, n_steps=16, batch_size=16, seed=1, device="cpu")
+    path = tmp_path / "model.zip"
+    model.save(path)
+    assert main(["eval", "--policy", str(path), "--episodes", "1", "--target-g", "100"]) == 0
+    out = capsys.readouterr().out
+    assert "episode 0: error" in out and "over 1 episodes" in out
+
+
+def test_files_that_are_not_pour_models_are_refused(tmp_path, capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["eval", "--policy", str(tmp_path / "missing.zip")])
+    assert exc.value.code == 2 and "argument --policy:" in capsys.readouterr().err
+
+    text = tmp_path / "notes.zip"
+    text.write_text("not a model")
+    assert main(["eval", "--policy", str(text), "--episodes", "1"]) == 2
+    assert "not a saved Stable-Baselines3 model" in capsys.readouterr().err
+
+    other = PPO("MlpPolicy", gym.make("Pendulum-v1"), n_steps=16, batch_size=16, device="cpu")
+    other.save(tmp_path / "pendulum.zip")
+    assert main(["eval", "--policy", str(tmp_path / "pendulum.zip"), "--episodes", "1"]) == 2
+    assert "observations (3,) and actions (1,)" in capsys.readouterr().err
