@@ -175,8 +175,41 @@ def test_default_curriculum() -> None:
     assert [lesson_at(p, lessons) for p in (0.0, 0.3, 0.6, 1.0)] == [0, 1, 2, 2]
 
 
-def test_bad_curriculum_file(tmp_path) -> None:
+GOOD_RANGES = {
+    "density": "[900.0, 1100.0]",
+    "adhesion": "[0.0, 0.001]",
+    "cohesion": "[0.001, 0.002]",
+    "surface_tension": "[0.0, 0.005]",
+    "viscosity": "[0.01, 0.05]",
+}
+
+
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        ({"density": "[1000.0, 900.0]"}, "lesson 0: density must be [low, high]"),
+        ({"density": "[-100.0, 900.0]"}, "lesson 0: density must be > 0"),
+        ({"viscosity": "[-0.1, 0.05]"}, "lesson 0: viscosity must be >= 0"),
+        ({"cohesion": "[0.001, nan]"}, "lesson 0: cohesion must be [low, high]"),
+        ({"adhesion": None}, "lesson 0: adhesion must be [low, high]"),
+        ({"fraction": None}, "lesson 0: fraction must be a number >= 0"),
+        ({"fraction": '"half"'}, "lesson 0: fraction must be a number >= 0"),
+        ({"density": "[900.0, 1100.0"}, "not a valid TOML file"),
+    ],
+)
+def test_bad_curriculum_file_names_the_file_lesson_and_key(tmp_path, change, words) -> None:
+    """Every malformed entry is refused when the file is read, with the file, the lesson and
+    the key (a negative density used to pass and fail at an episode's reset, naming the base
+    liquid instead)."""
+    entries = {"fraction": "1.0", **GOOD_RANGES, **change}
     bad = tmp_path / "c.toml"
-    bad.write_text("[[lesson]]\nfraction = 1.0\ndensity = [1000.0, 900.0]\n")
-    with pytest.raises(ValueError, match="density"):
+    body = "".join(f"{k} = {v}\n" for k, v in entries.items() if v is not None)
+    bad.write_text("[[lesson]]\n" + body)
+    with pytest.raises(ValueError) as exc:
         load_curriculum(bad)
+    assert str(bad) in str(exc.value) and words in str(exc.value)
+    good = tmp_path / "good.toml"
+    good.write_text(
+        "[[lesson]]\nfraction = 1.0\n" + "".join(f"{k} = {v}\n" for k, v in GOOD_RANGES.items())
+    )
+    assert load_curriculum(good)[0].ranges["density"] == (900.0, 1100.0)

@@ -7,6 +7,7 @@ surface tension and viscosity, plus the share of training steps it takes. The de
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
@@ -46,28 +47,42 @@ def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
     """Read lessons from a TOML file (``[[lesson]]`` tables; the shipped file by default).
 
     Raises:
-        ValueError: a lesson lacks a range, a range is not ``[low, high]`` with low ≤ high, or
-            the fractions do not sum to 1.
+        ValueError: naming the file, lesson and key: the file is not TOML, a lesson lacks a
+            range or a fraction, a range is not ``[low, high]`` of finite numbers with
+            low ≤ high, a density is not > 0 or a FleX coefficient is negative, or the
+            fractions are not ≥ 0 and do not sum to 1.
     """
     path = Path(path) if path is not None else DEFAULT_CURRICULUM
-    with open(path, "rb") as f:
-        data = tomllib.load(f)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"{path}: not a valid TOML file: {exc}") from None
     lessons = []
     for i, entry in enumerate(data.get("lesson", [])):
         ranges = {}
         for key in RANDOMISED:
             rng = entry.get(key)
-            if (
-                not isinstance(rng, list)
-                or len(rng) != 2
-                or not all(isinstance(v, int | float) for v in rng)
-                or rng[0] > rng[1]
+            if not (
+                isinstance(rng, list)
+                and len(rng) == 2
+                and all(isinstance(v, int | float) and math.isfinite(v) for v in rng)
+                and rng[0] <= rng[1]
             ):
-                raise ValueError(f"{path}: lesson {i}: {key} must be [low, high], got {rng!r}")
+                raise ValueError(
+                    f"{path}: lesson {i}: {key} must be [low, high] of finite numbers with "
+                    f"low <= high, got {rng!r}"
+                )
+            if rng[0] < 0 or (key == "density" and rng[0] == 0):
+                least = "> 0" if key == "density" else ">= 0"
+                raise ValueError(f"{path}: lesson {i}: {key} must be {least}, got {rng!r}")
             ranges[key] = (float(rng[0]), float(rng[1]))
-        lessons.append(
-            Lesson(str(entry.get("name", f"lesson{i}")), float(entry["fraction"]), ranges)
-        )
+        fraction = entry.get("fraction")
+        if not (isinstance(fraction, int | float) and math.isfinite(fraction) and fraction >= 0):
+            raise ValueError(
+                f"{path}: lesson {i}: fraction must be a number >= 0, got {fraction!r}"
+            )
+        lessons.append(Lesson(str(entry.get("name", f"lesson{i}")), float(fraction), ranges))
     if not lessons:
         raise ValueError(f"{path}: no [[lesson]] tables")
     total = sum(lesson.fraction for lesson in lessons)
