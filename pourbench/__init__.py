@@ -6,7 +6,31 @@ Subpackages, in import order: ``assets`` → ``scene`` → ``fluids`` → ``envs
 
 from __future__ import annotations
 
+import os
+import sys
+
 __version__ = "0.1.0"
+
+
+def _headless_gl_default() -> None:
+    """Let MuJoCo render offscreen on a Linux machine without a display.
+
+    MuJoCo picks its OpenGL backend once, when it is first imported, and its default (GLFW)
+    needs a display. Without one, and unless the user chose a backend (``MUJOCO_GL``), EGL is
+    chosen, so ``render_mode="rgb_array"`` works on servers and in CI. Nothing changes where
+    a display exists, on other systems, or once MuJoCo is already imported.
+    """
+    if (
+        sys.platform.startswith("linux")
+        and "MUJOCO_GL" not in os.environ
+        and not os.environ.get("DISPLAY")
+        and not os.environ.get("WAYLAND_DISPLAY")
+        and "mujoco" not in sys.modules
+    ):
+        os.environ["MUJOCO_GL"] = "egl"
+
+
+_headless_gl_default()
 
 
 def register_envs() -> None:

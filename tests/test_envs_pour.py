@@ -237,7 +237,21 @@ def test_set_lesson_single_and_vector() -> None:
     assert np.all((obs[:, 3] >= lo) & (obs[:, 3] <= hi))
 
 
+def _headless(code: str, **env: str) -> subprocess.CompletedProcess:
+    """Run ``code`` in a fresh interpreter without a display, MUJOCO_GL as ``env`` says."""
+    base = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MUJOCO_GL", "PYOPENGL_PLATFORM")
+    }
+    return subprocess.run(
+        [sys.executable, "-c", code], env={**base, **env}, capture_output=True, text=True,
+        timeout=120,
+    )  # fmt: skip
+
+
 def test_rgb_render_headless() -> None:
+    """With no display and no MUJOCO_GL, importing pourbench chooses EGL: the env renders."""
     code = (
         "import numpy as np, pourbench, gymnasium as gym\n"
         "env = gym.make('pourbench/Pour-v0', render_mode='rgb_array', liquid='water')\n"
@@ -248,14 +262,28 @@ def test_rgb_render_headless() -> None:
         "empty = env.render()\n"
         "print('DIFF', int((np.abs(img.astype(int) - empty).sum(-1) > 30).sum()))\n"
     )
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    res = subprocess.run(
-        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
-    )
+    res = _headless(code)
     if res.returncode and ("OpenGL" in res.stderr or "EGL" in res.stderr):
         pytest.skip(f"no offscreen OpenGL here: {res.stderr.strip().splitlines()[-1]}")
     assert res.returncode == 0, res.stderr
     assert int(res.stdout.split("DIFF")[1]) > 200  # the liquid's particles are drawn
+
+
+def test_render_without_a_usable_backend_says_what_to_set() -> None:
+    """A backend that needs a display (GLFW) chosen on a machine without one: one clear
+    error naming MUJOCO_GL, not MuJoCo's fatal OpenGL message alone."""
+    code = (
+        "import pourbench, gymnasium as gym\n"
+        "env = gym.make('pourbench/Pour-v0', render_mode='rgb_array')\n"
+        "env.reset(seed=0)\n"
+        "try:\n"
+        "    env.render()\n"
+        "except RuntimeError as exc:\n"
+        "    print('ERROR', exc)\n"
+    )
+    res = _headless(code, MUJOCO_GL="glfw")
+    assert res.returncode == 0, res.stderr
+    assert "ERROR offscreen rendering failed" in res.stdout and "MUJOCO_GL=egl" in res.stdout
 
 
 def test_episode_ends_upright_with_algorithm5_bonus() -> None:

@@ -5,6 +5,7 @@ The single environment is the batch of one of :class:`~pourbench.envs.core.PourB
 
 from __future__ import annotations
 
+import os
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -77,7 +78,8 @@ class PourEnv(gym.Env):
     ``collided``, ``sim_diverged``, ``is_success``, ``average_error_g``.
 
     Args:
-        render_mode: None or "rgb_array" (MuJoCo offscreen renderer, particles as spheres).
+        render_mode: None or "rgb_array" (MuJoCo offscreen renderer, particles as spheres;
+            without a display ``import pourbench`` chooses EGL unless ``MUJOCO_GL`` is set).
         record_path: if given, a rerun ``.rrd`` recording of the liquid and containers, one
             frame per reset and step. It is written to ``<record_path>.partial`` while the
             environment runs and moved to ``record_path`` by :meth:`close`, so an earlier
@@ -133,7 +135,14 @@ class PourEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.batch.model, *RENDER_SIZE, max_geom=20000)
+            try:
+                self._renderer = mujoco.Renderer(self.batch.model, *RENDER_SIZE, max_geom=20000)
+            except (mujoco.FatalError, ImportError, RuntimeError) as exc:
+                backend = os.environ.get("MUJOCO_GL") or "MuJoCo's default (GLFW)"
+                raise RuntimeError(
+                    f"offscreen rendering failed with the OpenGL backend {backend}: {exc}. "
+                    "Without a display, set MUJOCO_GL=egl (or osmesa) before MuJoCo is imported"
+                ) from None
         return render_world(self.batch, 0, self._renderer)
 
     def close(self) -> None:
