@@ -211,6 +211,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError as exc:  # bad input: one clear line, no traceback
         print(f"pourbench: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: outputs are written atomically, nothing half-done stays
+        print("pourbench: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -125,3 +125,24 @@ def test_bench_all_json_is_one_object_and_every_suite_runs(monkeypatch, capsys) 
     assert [d["suite"] for d in doc["suites"]] == ["a", "b"]
     assert doc["suites"][0]["rows"] == [{"out": "leaderboard", "write": False}]
     assert "leaderboard not written" in captured.err
+
+
+def test_ctrl_c_ends_a_run_in_one_line_and_keeps_the_previous_recording(
+    tmp_path, capsys, monkeypatch
+) -> None:
+    """Ctrl-C during the demo's simulation: exit status 130, one line, no traceback, and the
+    recording already at --out is left as it was (the new one was still a .partial file)."""
+    from pourbench.fluids.solver import PBFSolver
+
+    out = tmp_path / "demo.rrd"
+    out.write_bytes(b"an earlier recording")
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(PBFSolver, "step", interrupted)
+    assert main(["demo", "--seconds", "0.5", "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1] == "pourbench: interrupted" and "Traceback" not in err
+    assert out.read_bytes() == b"an earlier recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.rrd"]  # no partial file left
