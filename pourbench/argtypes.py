@@ -8,7 +8,8 @@ import argparse
 import math
 from pathlib import Path
 
-BUILTIN_POLICIES = ("pd", "random")
+BUILTIN_POLICIES: tuple[str, ...] = ("pd", "random")
+"""Policies ``pourbench eval`` knows by name (the rest are paths of saved models)."""
 
 
 def positive_float(text: str) -> float:

@@ -3,13 +3,15 @@ the actions it takes in memory; files that are not Pour-v0 models are refused in
 
 from __future__ import annotations
 
+import re
+
 import gymnasium as gym
 import numpy as np
 import pytest
 from sb3_contrib import RecurrentPPO
 from stable_baselines3 import PPO
 
-from pourbench.agents.evaluate import load_sb3_policy
+from pourbench.agents.evaluate import evaluate, load_sb3_policy
 from pourbench.agents.sb3 import SB3PourVecEnv
 from pourbench.cli import main
 
@@ -57,12 +59,17 @@ def test_a_saved_recurrent_model_keeps_its_memory_within_an_episode(tmp_path, po
 
 
 def test_pourbench_eval_pours_with_a_saved_model(tmp_path, pour_env, capsys) -> None:
+    """The command's episode is the one the model in memory pours (same seed, same error)."""
     model = PPO("MlpPolicy", pour_env, n_steps=16, batch_size=16, seed=1, device="cpu")
     path = tmp_path / "model.zip"
     model.save(path)
     assert main(["eval", "--policy", str(path), "--episodes", "1", "--target-g", "100"]) == 0
-    out = capsys.readouterr().out
-    assert "episode 0: error" in out and "over 1 episodes" in out
+    printed = float(re.search(r"episode 0: error\s+([-\d.]+) g", capsys.readouterr().out)[1])
+    in_memory = evaluate(
+        lambda obs, new: model.predict(obs, deterministic=True)[0], 1, 100.0, liquid="water"
+    )
+    assert printed == pytest.approx(in_memory.errors_g[0], abs=0.005)
+    assert printed != pytest.approx(evaluate("pd", 1, 100.0, liquid="water").errors_g[0], abs=0.5)
 
 
 def test_files_that_are_not_pour_models_are_refused(tmp_path, capsys) -> None:

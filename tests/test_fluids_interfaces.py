@@ -26,10 +26,10 @@ BY_ADHESION = ("water", "oil", "glycerine", "honey", "ketchup")
 
 
 @pytest.fixture(scope="module")
-def hanging() -> dict[str, tuple[int, float, float, float]]:
+def hanging() -> dict[str, tuple[int, float, float, float, float]]:
     """A 10 × 10 film of each Table 6.2 liquid touching the underside of a box, one second
     later: per liquid (particles still hanging, their mean gap below contact in m, the
-    ceiling's vertical reaction in N, one particle's mass in kg)."""
+    ceiling's vertical reaction in N, one particle's mass in kg, adhesion's per-step f)."""
     solver = PBFSolver(len(BY_ADHESION), CFG)
     r, d = CFG.radius, CFG.spacing
     grid = (np.arange(10) - 4.5) * d
@@ -44,13 +44,13 @@ def hanging() -> dict[str, tuple[int, float, float, float]]:
     solver.step(SECOND)
     z, worlds = solver.positions()[:, 2], solver.worlds()
     force, _ = solver.body_wrenches()
+    frac = solver.step_fractions()["adhesion_frac"]
     out = {}
     for w, name in enumerate(BY_ADHESION):
         zw = z[worlds == w]
         held = zw > CEILING_Z - 0.02  # the rest have fallen 1.2 m by now
         gap = float(np.mean(CEILING_Z - r - zw[held])) if held.any() else float("nan")
-        out[name] = (int(held.sum()), gap, float(force[w, 2]), solver.particle_mass(w))
-    out["_fractions"] = solver.step_fractions()["adhesion_frac"]
+        out[name] = (int(held.sum()), gap, float(force[w, 2]), solver.particle_mass(w), frac[w])
     return out
 
 
@@ -61,12 +61,11 @@ def test_adhesion_hangs_a_film_where_it_beats_gravity(hanging) -> None:
     water, oil and glycerine (f ≤ 0.05, a balance 3.2 mm or more below contact, band 2.5 mm)
     drip off the ceiling, honey (f = 0.25) and ketchup (f = 1) hang at the predicted gap
     (0.51 and 0 mm; measured 0.511 and 0)."""
-    frac = hanging["_fractions"]
     band = 0.5 * CFG.spacing
     fall = G * CFG.dt**2
-    for w, name in enumerate(BY_ADHESION):
-        held, gap, _, _ = hanging[name]
-        balance = fall * (1.0 - frac[w]) / frac[w] if frac[w] > 0 else np.inf
+    for name in BY_ADHESION:
+        held, gap, _, _, frac = hanging[name]
+        balance = fall * (1.0 - frac) / frac if frac > 0 else np.inf
         if balance > band:
             assert held == 0, f"{name}: {held} hang, balance {balance * 1e3:.1f} mm below"
         else:
@@ -79,7 +78,7 @@ def test_the_ceiling_carries_the_hanging_films_weight(hanging) -> None:
     """The pull that holds a film up is a force on the ceiling's body: the liquid's reaction
     pulls it down by the hanging mass times g (within 0.5 %; measured within 0.01 %)."""
     for name in BY_ADHESION:
-        held, _, fz, mass = hanging[name]
+        held, _, fz, mass, _ = hanging[name]
         assert fz == pytest.approx(-held * mass * G, rel=0.005, abs=1e-6), name
 
 

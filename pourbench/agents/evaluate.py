@@ -17,9 +17,10 @@ import numpy as np
 from tqdm import tqdm
 
 from pourbench.agents.pd import PDConfig, PDPourer
+from pourbench.argtypes import BUILTIN_POLICIES
 from pourbench.envs.pour import PourEnv
 
-POLICIES: tuple[str, ...] = ("pd", "random")
+POLICIES = BUILTIN_POLICIES
 
 
 @dataclass(frozen=True)
