@@ -38,7 +38,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         modules = [m for m in modules if getattr(m, "HAS_CUDA", False)]
         if not modules:
             raise ValueError(f"bench {args.suite} has no CUDA path; use --device cpu")
-    if args.out is None:  # a quick run is a smoke test: it leaves the tables alone
+    if getattr(args, "out", None) is None:  # a quick run is a smoke test: no tables
         args.out = "leaderboard"
         if args.quick and not args.no_write:
             args.no_write = True
@@ -149,7 +149,11 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help='print one JSON object to stdout (for "all": {"suites": [one per suite]})',
     )
-    bench.add_argument("--out", default=None, help="folder for the tables [leaderboard]")
+    bench.add_argument(
+        "--out",
+        default=argparse.SUPPRESS,  # no "(default: None)" in the help
+        help="folder for the tables (default: leaderboard; with --quick, no tables unless given)",
+    )
     bench.add_argument("--no-write", action="store_true", help="do not write leaderboard files")
     bench.add_argument(
         "--device",

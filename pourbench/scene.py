@@ -17,7 +17,13 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from pourbench.containers import DEFAULT_MAX_ERROR, Container, add_container_body, get_container
+from pourbench.containers import (
+    DEFAULT_MAX_ERROR,
+    Container,
+    add_container_body,
+    container_names,
+    get_container,
+)
 from pourbench.errors import InvalidParameterError, UnknownNameError
 
 ROBOTS: tuple[str, ...] = ("movo", "panda")
@@ -244,10 +250,16 @@ def build_pour_scene(
 
     Raises:
         UnknownNameError: unknown robot or container (a ``ValueError`` listing the known ones).
+        InvalidParameterError: a receiving container (the tray) as the pouring one.
     """
     if robot is not None and robot not in ROBOTS:
         raise UnknownNameError("robot", robot, ROBOTS)
     pour, recv = get_container(pouring), get_container(receiving)
+    if pour.role == "receiving":
+        pours = ", ".join(sorted(container_names("training") + container_names("novel")))
+        raise InvalidParameterError(
+            f"{pouring!r} is a receiving container and cannot pour; pouring containers: {pours}"
+        )
     if robot is None:
         spec = mujoco.MjSpec()
         spec.modelname = f"pour_{pouring}_{receiving}"

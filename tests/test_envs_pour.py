@@ -10,6 +10,7 @@ import sys
 import gymnasium as gym
 import numpy as np
 import pytest
+from gymnasium.error import ResetNeeded
 from gymnasium.utils.env_checker import check_env
 
 import pourbench  # noqa: F401  (registers the ids)
@@ -192,6 +193,26 @@ def test_bad_input() -> None:
         venv.step(np.zeros(2))
 
 
+def test_stepping_outside_an_episode_is_refused_and_changes_nothing() -> None:
+    env = PourEnv(max_steps=2)
+    with pytest.raises(ResetNeeded, match="before its first reset"):
+        env.step(np.zeros(2))
+    env.reset(seed=0, options={"start": ABOVE})
+    trunc = False
+    for _ in range(2):
+        _, _, term, trunc, _ = env.step(np.zeros(2))
+    assert trunc and not term
+    x = env.batch.solver.positions()
+    with pytest.raises(ResetNeeded, match="after its episode ended"):
+        env.step(np.zeros(2))
+    assert np.array_equal(env.batch.solver.positions(), x), "the refused step moved liquid"
+    env.reset(seed=1)
+    _, _, term, trunc, _ = env.step(np.zeros(2))
+    assert not (term or trunc)
+    with pytest.raises(ResetNeeded, match="world 0 was stepped before"):
+        PourVectorEnv(2).step(np.zeros((2, 2)))
+
+
 def test_a_rejected_first_reset_leaves_the_made_env_usable() -> None:
     # Gymnasium's passive checker broke every later step after a first reset that raised
     env = gym.make("pourbench/Pour-v0", max_steps=3)
@@ -306,6 +327,11 @@ def test_episode_ends_upright_with_algorithm5_bonus() -> None:
     assert rewards[-1] == pytest.approx(bonus)
     assert all(r in (0.0, pytest.approx(-1 / env.config.max_steps)) for r in rewards[:-1])
     assert info["is_success"] == (info["error_g"] <= 10.0)
+    # the running average is the environment's memory: the next episode starts with it
+    obs, info2 = env.reset(seed=3)
+    assert obs[10] == pytest.approx(info["error_g"], abs=1e-4)
+    assert info2["average_error_g"] == pytest.approx(info["error_g"])
+    assert PourEnv(liquid="water").reset(seed=3)[0][10] == 0.0  # a new environment: none yet
 
 
 def test_rerun_recording(tmp_path) -> None:

@@ -149,6 +149,8 @@ def test_bad_names_list_the_known_ones() -> None:
     assert "kettle" in str(info.value)
     with pytest.raises(ValueError, match="tray"):
         build_pour_scene("training", "bucket", "panda")
+    with pytest.raises(ValueError, match=r"'tray' is a receiving container.*bottle_wine"):
+        build_pour_scene("tray", "tray")  # the tray receives only
 
 
 def test_view_records_every_visible_geom(tmp_path, capsys) -> None:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
+from gymnasium.error import ResetNeeded
 
 from pourbench.containers import Container, container_names, get_container
 from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, as_actions, handle_actions
@@ -410,10 +411,19 @@ class PourBatch:
         Returns:
             observations (n, 12), rewards (n,), terminated (n,), truncated (n,), infos (dict
             of (n,) arrays).
+
+        Raises:
+            ResetNeeded: an active world was never reset, or its episode has ended
+                (terminated or truncated); nothing is stepped.
         """
         cfg = self.config
         a = as_actions(actions, self.n)
         active = np.ones(self.n, bool) if active is None else np.asarray(active, bool)
+        for w in np.flatnonzero(active):
+            st = self.worlds[w]
+            if st is None or st.done:
+                when = "before its first reset" if st is None else "after its episode ended"
+                raise ResetNeeded(f"world {w} was stepped {when}; call reset() first")
         a = np.where(active[:, None], a, 0.0)
         recv = self.receiving
         pour = [get_container(w.container) for w in self.worlds]

@@ -51,7 +51,10 @@ class PourEnv(gym.Env):
            0.15 N noise, 2nd-order Butterworth low-pass at 1 Hz over 100 Hz samples)
         8. target, g
         9. fill-level difference: target − measured weight, g
-        10. running average pouring error over the last n completed episodes, g
+        10. running average pouring error over the last n completed episodes, g (the
+            thesis' Avg. Pouring Error, n = ``RewardConfig.window`` = 10). It is the
+            environment's memory across episodes: resets keep it, a new environment starts
+            at 0, and episodes that end by collision, truncation or divergence do not count.
         11. pouring-container tilt about its forward axis, rad (0 = upright)
 
     Action (2 float32 in [-1, 1]): ``ω`` rotational velocity (× ``limits.max_rate``, 0.8 rad/s)
