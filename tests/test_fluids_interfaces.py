@@ -142,9 +142,10 @@ def test_surface_tension_rounds_a_cohesive_cube_into_a_ball(blobs) -> None:
 
 @pytest.mark.xfail(
     strict=True,
-    reason="Table 6.2 water scatters as a free drop: its surface tension's curvature term "
-    "pushes a flat surface outward (0.5 m/s²) harder than its cohesion pulls it in (0.1 m/s²), "
-    "on top of the tensile term's push; docs/contact.md",
+    reason="Table 6.2 water scatters as a free drop: the tensile term s_corr blows the surface "
+    "layer off (the unilateral density constraint leaves nothing to balance it; even cohesion "
+    "0.01 does not hold), and its curvature term pushes a flat surface outward (0.5 m/s²) "
+    "harder than its cohesion pulls it in (0.1 m/s²); docs/contact.md",
 )
 def test_table_6_2_water_holds_together_as_a_free_drop(blobs) -> None:
     """Water in zero gravity stays one drop. Table 6.2's water profile, as the cube above:
