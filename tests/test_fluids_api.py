@@ -576,21 +576,35 @@ def test_collider_sdfs_are_one_lipschitz() -> None:
         assert np.all(rise <= step + 1e-6), (s.colliders[c].kind, float((rise - step).max()))
 
 
-def test_step_fractions_keep_their_rate_per_second() -> None:
-    """XSPH viscosity, particle friction and adhesion act as fractions per step, calibrated
-    at ``calibration_dt``; at other steps they are rescaled so that two half-length steps
-    relax as much as one, and at ``calibration_dt`` they are the calibrated values."""
-    left = {}
+def test_step_fractions_rescale_with_the_step() -> None:
+    """XSPH viscosity and particle friction relax velocities by fractions per step, rescaled
+    so that two half-length steps relax as much as one; adhesion acts as a force: its pull is
+    a spring of one stiffness at every step, its grip scales with dt². At ``calibration_dt``
+    all are the calibrated values. (That a pour then keeps its timing at another step is checked by
+    ``test_a_sticky_pour_does_not_depend_on_the_step``.)"""
+    got = {}
     for dt in (1 / 480, 1 / 240, 1 / 120):
         s = PBFSolver(2, SolverConfig(dt=dt))
         s.set_liquid(0, "ink")
         s.set_liquid(1, "honey")
-        left[dt] = {k: 1.0 - f for k, f in s.step_fractions().items()}
-    for k in left[1 / 240]:
-        np.testing.assert_allclose(left[1 / 480][k] ** 2, left[1 / 240][k], rtol=1e-12)
-        np.testing.assert_allclose(left[1 / 240][k] ** 2, left[1 / 120][k], rtol=1e-12)
+        got[dt] = s.step_fractions()
+    for k in ("viscosity_frac", "friction_frac"):
+        left = {dt: 1.0 - f[k] for dt, f in got.items()}
+        np.testing.assert_allclose(left[1 / 480] ** 2, left[1 / 240], rtol=1e-12)
+        np.testing.assert_allclose(left[1 / 240] ** 2, left[1 / 120], rtol=1e-12)
+    grip = {dt: f["adhesion_grip"] for dt, f in got.items()}
+    np.testing.assert_allclose(4.0 * grip[1 / 480], grip[1 / 240], rtol=1e-12)
+    np.testing.assert_allclose(grip[1 / 120], 4.0 * grip[1 / 240], rtol=1e-12)
+    # the pull is a spring of stiffness k: k dt² / (1 + k dt²) a step, the same k at every dt
+    stiffness = {
+        dt: f["adhesion_frac"] / (1.0 - f["adhesion_frac"]) / dt**2 for dt, f in got.items()
+    }
+    np.testing.assert_allclose(stiffness[1 / 480], stiffness[1 / 240], rtol=1e-9)
+    np.testing.assert_allclose(stiffness[1 / 120], stiffness[1 / 240], rtol=1e-9)
     ink, honey = liquid_profile("ink"), liquid_profile("honey")
-    kept = left[1 / 240]  # the share that each fraction leaves
+    adhesion = np.array([ink.adhesion, honey.adhesion])
+    cfg = SolverConfig()
+    kept = {k: 1.0 - f for k, f in got[1 / 240].items()}  # the share that each fraction leaves
     np.testing.assert_allclose(
         kept["viscosity_frac"], 1.0 / (1.0 + np.array([ink.viscosity, honey.viscosity]))
     )
@@ -598,3 +612,5 @@ def test_step_fractions_keep_their_rate_per_second() -> None:
         kept["friction_frac"],
         1.0 - 0.1 * np.array([ink.particle_friction, honey.particle_friction]),
     )
+    np.testing.assert_allclose(got[1 / 240]["adhesion_frac"], cfg.adhesion_gain * adhesion)
+    np.testing.assert_allclose(got[1 / 240]["adhesion_grip"], adhesion * 0.5 * cfg.spacing)

@@ -206,6 +206,20 @@ def test_viscous_liquids_pour_in_order(sleep: float) -> None:
     assert residue["ketchup"] > residue["water"], residue
 
 
+def test_a_sticky_pour_does_not_depend_on_the_step() -> None:
+    """Honey and ketchup, the two liquids adhesion holds back, pour the same at half the step
+    (dt = 1/480 s against the default 1/240): the half-pour time within 10 % and the grams left
+    in the cup within 15 g of 200. Adhesion acts as a force: its pull is a spring of one
+    stiffness at any step, its grip scales with dt². Measured: 4.3 % and 8 g (honey), 7.0 %
+    and 1.6 g (ketchup); scaled per second instead, honey took 15 % longer and kept 72 g
+    instead of 8, ketchup 55 % longer and 99 g instead of 54."""
+    sticky = ("honey", "ketchup")
+    t_ref, left_ref = half_pour_times(sticky)
+    t_half, left = half_pour_times(sticky, dt=1.0 / 480.0)
+    np.testing.assert_allclose(t_half, t_ref, rtol=0.10)
+    np.testing.assert_allclose(left, left_ref, atol=15.0)
+
+
 def test_dam_break_front_follows_martin_moyce() -> None:
     fronts = dam_break_fronts()
     for T, z_ref in MARTIN_MOYCE.items():

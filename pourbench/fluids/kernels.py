@@ -1253,7 +1253,7 @@ def collide(
     mass: wp.array(dtype=float),
     static_friction: wp.array(dtype=float),
     dynamic_friction: wp.array(dtype=float),
-    adhesion: wp.array(dtype=float),
+    adhesion_grip: wp.array(dtype=float),
     radius: float,
     adhesion_range: float,
     adhesion_frac: wp.array(dtype=float),
@@ -1336,7 +1336,7 @@ def collide(
                 touched = 1
                 pressed = 1
                 n = wp.vec3(s[1], s[2], s[3])
-                q = hold(q + n * pen, a, n, pen, push[i], adhesion[w] * adhesion_range,
+                q = hold(q + n * pen, a, n, pen, push[i], adhesion_grip[w],
                          static_friction[w], dynamic_friction[w], 0.0)  # fmt: skip
             elif s[0] < band_s:
                 band_c = c
@@ -1360,7 +1360,7 @@ def collide(
         gap = s[0] - radius  # ≥ 0 but for the rounding of the frame change
         if gap < adhesion_range:
             q = hold(b, a, wp.vec3(s[1], s[2], s[3]), wp.max(-gap, 0.0), push[i],
-                     adhesion[w] * adhesion_range, static_friction[w], dynamic_friction[w],
+                     adhesion_grip[w], static_friction[w], dynamic_friction[w],
                      wp.max(gap, 0.0) * adhesion_frac[w])  # fmt: skip
             new_p = pi + wp.transform_vector(tf, q - b)
             add_reaction(cols, band_c, new_p - pi, new_p, m, dt)

@@ -18,13 +18,14 @@ liquids): viscosity ν relaxes each particle's velocity toward its neighbours' k
 by ``a = κν / (1 + κν)`` per step of ``SolverConfig.calibration_dt`` (rescaled to other steps
 so that the relaxation per second is the same) with κ = ``SolverConfig.viscosity_rate``;
 cohesion and surface tension are accelerations ``coefficient × cohesion_accel`` (Akinci
-et al. 2013 forms); particle friction and adhesion are likewise fractions per calibration step;
-adhesion pulls particles within ``adhesion_range`` of a surface back onto it and adds grip
-to the wall friction; damping is a drag rate (1/s); dissipation damps velocity per shape
-contact (1/s per contact: FleX damps "based on how many particle contacts it has", and were
-every liquid neighbour a contact, Table 3.5's dish soap, 5, could not pour). FleX's
-``buoyancy`` scales gravity for gases in FleX; it is kept in the profiles for provenance
-but not applied, so that a container's weight is the liquid's.
+et al. 2013 forms); particle friction is likewise a fraction per calibration step (rescaled
+the same way); adhesion pulls particles within half a spacing of a surface back onto it and
+adds grip to the wall friction, as a force (a spring and a grip rescaled to any step); damping
+is a drag rate (1/s); dissipation damps velocity per shape contact (1/s per contact: FleX
+damps "based on how many particle contacts it has", and were every liquid neighbour a
+contact, Table 3.5's dish soap, 5, could not pour). FleX's ``buoyancy`` scales gravity for
+gases in FleX; it is kept in the profiles for provenance but not applied, so that a
+container's weight is the liquid's.
 """
 
 from __future__ import annotations
@@ -104,9 +105,12 @@ class SolverConfig:
             relaxation per second.
         calibration_dt: the step at which the per-step fractions (XSPH viscosity, particle
             friction, adhesion) were calibrated against the validation experiments; they are
-            rescaled to other steps so that a liquid behaves the same at any dt.
+            rescaled to other steps so that a liquid behaves the same at any dt
+            (:meth:`PBFSolver.step_fractions`).
         cohesion_accel, surface_tension_accel: acceleration per unit coefficient, m/s².
-        adhesion_gain: fraction of the gap closed per step per unit FleX adhesion.
+        adhesion_gain: fraction of the gap closed per step of ``calibration_dt`` per unit
+            FleX adhesion (the spring it makes is kept at other steps, see
+            :meth:`PBFSolver.step_fractions`).
         max_speed: speed above which a world is flagged as diverged, m/s.
         sleep_threshold: FleX's ``sleepThreshold``, m/s: a particle whose step ends slower
             than this does not move that step (it keeps its start position, its velocity is
@@ -465,21 +469,37 @@ class PBFSolver:
             self._dirty = True
 
     def step_fractions(self) -> dict[str, np.ndarray]:
-        """Per world, the fractions applied once per step: XSPH viscosity's relaxation toward
-        the neighbours' mean (κν / (1 + κν)), particle friction's share of the tangential
-        relative velocity removed (0.1 per unit, at most 1), and adhesion's share of the gap
-        to a surface closed (``adhesion_gain`` per unit, at most 1). They are calibrated per
-        step of ``calibration_dt`` and rescaled to ``dt`` as 1 − (1 − f)^(dt / calibration_dt),
-        so the relaxation per second does not depend on the step."""
+        """Per world, what is applied once per step, calibrated per step of
+        ``calibration_dt`` and rescaled to ``dt`` (ratio r = dt / calibration_dt):
+
+        - velocity relaxations, rescaled as 1 − (1 − f)^r, the same relaxation per second:
+          XSPH viscosity's toward the neighbours' mean (``viscosity_frac``, κν / (1 + κν)) and
+          particle friction's share of the tangential relative velocity removed
+          (``friction_frac``, 0.1 per unit, at most 1);
+        - adhesion, which acts as a force. Its pull closes a share of the gap to a surface
+          (``adhesion_frac``: f0 = ``adhesion_gain`` per unit, at most 1, at
+          ``calibration_dt``); that is a spring of stiffness k with k dt0² = f0 / (1 − f0),
+          solved with compliance as in XPBD, so at ``dt`` the share is k dt² / (1 + k dt²)
+          (f0 = 1, a lock, stays 1). The grip it adds to wall friction (``adhesion_grip``,
+          m: FleX adhesion × the band of half a spacing) is a force's position change per
+          step and scales with r². Scaled per second instead, adhesion grew as 1/dt: honey
+          left 72 g of 200 in the cup at dt = 1/480 s against 8 g at 1/240.
+        """
         cfg = self.config
         kv = cfg.viscosity_rate * np.array([liq.viscosity for liq in self.liquids])
-        base = {
+        relax = {
             "viscosity_frac": kv / (1.0 + kv),
             "friction_frac": [min(0.1 * liq.particle_friction, 1.0) for liq in self.liquids],
-            "adhesion_frac": [min(cfg.adhesion_gain * liq.adhesion, 1.0) for liq in self.liquids],
         }
         ratio = cfg.dt / cfg.calibration_dt
-        return {k: 1.0 - (1.0 - np.asarray(f, float)) ** ratio for k, f in base.items()}
+        out = {k: 1.0 - (1.0 - np.asarray(f, float)) ** ratio for k, f in relax.items()}
+        adhesion = np.array([liq.adhesion for liq in self.liquids], float)
+        f0 = np.minimum(cfg.adhesion_gain * adhesion, 1.0)
+        with np.errstate(divide="ignore"):
+            k_dt2 = f0 / (1.0 - f0) * ratio**2  # k dt² of the pull's spring; inf: a lock
+        out["adhesion_frac"] = 1.0 - 1.0 / (1.0 + k_dt2)
+        out["adhesion_grip"] = adhesion * (0.5 * cfg.spacing) * ratio**2
+        return out
 
     def _upload(self) -> None:
         dev, cfg = self.device, self.config
@@ -525,7 +545,6 @@ class PBFSolver:
             "surface_tension",
             "static_friction",
             "dynamic_friction",
-            "adhesion",
         )
         values = {a: [getattr(liq, a) for liq in self.liquids] for a in attrs}
         values.update(self.step_fractions())
@@ -810,7 +829,7 @@ class PBFSolver:
                 self.mass,
                 P["static_friction"],
                 P["dynamic_friction"],
-                P["adhesion"],
+                P["adhesion_grip"],
                 cfg.radius,
                 0.5 * cfg.spacing,
                 P["adhesion_frac"],

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -193,8 +193,10 @@ def half_pour_times(
     spacing: float = 0.006,
     device: str = "cpu",
     sleep_threshold: float = 0.0,
+    dt: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """All liquids poured with the same tilt, one world each in one solver.
+    """All liquids poured with the same tilt, one world each in one solver (at the solver's
+    default step unless ``dt`` is given).
 
     Returns:
         Time (s) at which half the liquid had left the source cup (interpolated within the
@@ -202,6 +204,8 @@ def half_pour_times(
     """
     n = len(liquids)
     cfg = SolverConfig(spacing=spacing, device=device, sleep_threshold=sleep_threshold)
+    if dt is not None:
+        cfg = replace(cfg, dt=dt)
     scene = two_cup_scene(list(liquids), 200.0, num_worlds=n, config=cfg)
     s = scene.solver
     total = np.array([scene.metrics(w).total_g for w in range(n)])
