@@ -613,4 +613,4 @@ def test_step_fractions_rescale_with_the_step() -> None:
         1.0 - 0.1 * np.array([ink.particle_friction, honey.particle_friction]),
     )
     np.testing.assert_allclose(got[1 / 240]["adhesion_frac"], cfg.adhesion_gain * adhesion)
-    np.testing.assert_allclose(got[1 / 240]["adhesion_grip"], adhesion * 0.5 * cfg.spacing)
+    np.testing.assert_allclose(got[1 / 240]["adhesion_grip"], adhesion * cfg.adhesion_range)

@@ -61,7 +61,7 @@ def test_adhesion_hangs_a_film_where_it_beats_gravity(hanging) -> None:
     water, oil and glycerine (f ≤ 0.05, a balance 3.2 mm or more below contact, band 2.5 mm)
     drip off the ceiling, honey (f = 0.25) and ketchup (f = 1) hang at the predicted gap
     (0.51 and 0 mm; measured 0.511 and 0)."""
-    band = 0.5 * CFG.spacing
+    band = CFG.adhesion_range
     fall = G * CFG.dt**2
     for name in BY_ADHESION:
         held, gap, _, _, frac = hanging[name]

@@ -178,6 +178,11 @@ class SolverConfig:
         """Particle collision radius, m."""
         return 0.5 * self.spacing
 
+    @property
+    def adhesion_range(self) -> float:
+        """Band beyond contact within which adhesion holds a particle, m (half a spacing)."""
+        return 0.5 * self.spacing
+
 
 @dataclass
 class Collider:
@@ -481,7 +486,7 @@ class PBFSolver:
           ``calibration_dt``); that is a spring of stiffness k with k dt0² = f0 / (1 − f0),
           solved with compliance as in XPBD, so at ``dt`` the share is k dt² / (1 + k dt²)
           (f0 = 1, a lock, stays 1). The grip it adds to wall friction (``adhesion_grip``,
-          m: FleX adhesion × the band of half a spacing) is a force's position change per
+          m: FleX adhesion × ``SolverConfig.adhesion_range``) is a force's position change per
           step and scales with r². Scaled per second instead, adhesion grew as 1/dt: honey
           left 72 g of 200 in the cup at dt = 1/480 s against 8 g at 1/240.
         """
@@ -498,7 +503,7 @@ class PBFSolver:
         with np.errstate(divide="ignore"):
             k_dt2 = f0 / (1.0 - f0) * ratio**2  # k dt² of the pull's spring; inf: a lock
         out["adhesion_frac"] = 1.0 - 1.0 / (1.0 + k_dt2)
-        out["adhesion_grip"] = adhesion * (0.5 * cfg.spacing) * ratio**2
+        out["adhesion_grip"] = adhesion * cfg.adhesion_range * ratio**2
         return out
 
     def _upload(self) -> None:
@@ -831,7 +836,7 @@ class PBFSolver:
                 P["dynamic_friction"],
                 P["adhesion_grip"],
                 cfg.radius,
-                0.5 * cfg.spacing,
+                cfg.adhesion_range,
                 P["adhesion_frac"],
                 cfg.dt,
                 self.clear,

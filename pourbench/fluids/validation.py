@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -193,19 +193,16 @@ def half_pour_times(
     spacing: float = 0.006,
     device: str = "cpu",
     sleep_threshold: float = 0.0,
-    dt: float | None = None,
+    dt: float = SolverConfig.dt,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """All liquids poured with the same tilt, one world each in one solver (at the solver's
-    default step unless ``dt`` is given).
+    """All liquids poured with the same tilt, one world each in one solver, at step ``dt``.
 
     Returns:
         Time (s) at which half the liquid had left the source cup (interpolated within the
         step; inf if never), and the grams left in the source after ``seconds``.
     """
     n = len(liquids)
-    cfg = SolverConfig(spacing=spacing, device=device, sleep_threshold=sleep_threshold)
-    if dt is not None:
-        cfg = replace(cfg, dt=dt)
+    cfg = SolverConfig(spacing=spacing, dt=dt, device=device, sleep_threshold=sleep_threshold)
     scene = two_cup_scene(list(liquids), 200.0, num_worlds=n, config=cfg)
     s = scene.solver
     total = np.array([scene.metrics(w).total_g for w in range(n)])
