@@ -17,8 +17,12 @@ def _headless_gl_default() -> None:
 
     MuJoCo picks its OpenGL backend once, when it is first imported, and its default (GLFW)
     needs a display. Without one, and unless the user chose a backend (``MUJOCO_GL``), EGL is
-    chosen, so ``render_mode="rgb_array"`` works on servers and in CI. Nothing changes where
-    a display exists, on other systems, or once MuJoCo is already imported.
+    chosen where its library is installed (else OSMesa where that is), so
+    ``render_mode="rgb_array"`` works on servers and in CI. Where neither is installed nothing
+    is chosen: MuJoCo imports the backend it is told to at its own import, so a missing one
+    would break ``import mujoco`` itself, not only rendering (rendering then fails with an
+    error naming ``MUJOCO_GL``). Nothing changes where a display exists, on other systems, or
+    once MuJoCo is already imported.
     """
     if (
         sys.platform.startswith("linux")
@@ -27,7 +31,12 @@ def _headless_gl_default() -> None:
         and not os.environ.get("WAYLAND_DISPLAY")
         and "mujoco" not in sys.modules
     ):
-        os.environ["MUJOCO_GL"] = "egl"
+        from ctypes.util import find_library
+
+        for backend, library in (("egl", "EGL"), ("osmesa", "OSMesa")):
+            if find_library(library):
+                os.environ["MUJOCO_GL"] = backend
+                break
 
 
 _headless_gl_default()

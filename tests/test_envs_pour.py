@@ -290,6 +290,30 @@ def test_rgb_render_headless() -> None:
     assert int(res.stdout.split("DIFF")[1]) > 200  # the liquid's particles are drawn
 
 
+def test_no_offscreen_library_leaves_the_backend_unset() -> None:
+    """Headless, with neither EGL nor OSMesa installed (a bare GPU server): import pourbench
+    chooses no backend, since MuJoCo imports the chosen one at its own import and a missing
+    library broke ``import pourbench.fluids`` there; else EGL first, then OSMesa."""
+    code = (
+        "import ctypes.util, os, sys\n"
+        "have = set(sys.argv[1:])\n"
+        "ctypes.util.find_library = lambda name: f'lib{name}.so' if name in have else None\n"
+        "import pourbench\n"
+        "print('GL', os.environ.get('MUJOCO_GL'))\n"
+        "if not have:\n"
+        "    import pourbench.fluids  # imports MuJoCo\n"
+    )
+
+    def chosen(*libraries: str) -> str:
+        res = _headless(f"import sys; sys.argv[1:] = {list(libraries)!r}\n" + code)
+        assert res.returncode == 0, res.stderr
+        return res.stdout.split("GL ")[1].strip()
+
+    assert chosen() == "None"
+    assert chosen("OSMesa") == "osmesa"
+    assert chosen("EGL", "OSMesa") == "egl"
+
+
 def test_render_without_a_usable_backend_says_what_to_set() -> None:
     """A backend that needs a display (GLFW) chosen on a machine without one: one clear
     error naming MUJOCO_GL, not MuJoCo's fatal OpenGL message alone."""
