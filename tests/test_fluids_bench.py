@@ -120,3 +120,15 @@ def test_cuda_bench_of_a_cpu_only_suite_is_a_clear_error(suite, monkeypatch) -> 
     args = argparse.Namespace(suite=suite, device="cuda")
     with pytest.raises(ValueError, match="has no CUDA path"):
         cli._cmd_bench(args)
+
+
+def test_env_bench_runs_past_an_episode_end() -> None:
+    """The single-env case steps longer than an episode (250 steps): it resets the ended
+    episode as a training loop does, instead of stepping a finished one (ResetNeeded)."""
+    from pourbench.bench import env
+    from pourbench.envs.core import PourConfig
+
+    assert PourConfig().max_steps < 260
+    row = env.run_case("single", "cpu", 1, budget_s=0.0, min_steps=260)
+    assert row["worlds"] == 1 and row["env_steps_per_s"] > 0
+    assert 0.3 < row["g_per_particle"] < 0.7  # 8 mm particles of water, about 0.5 g each

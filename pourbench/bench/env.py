@@ -43,8 +43,12 @@ def cases(quick: bool, device: str = "auto") -> list[tuple[str, str, int]]:
     return out
 
 
-def run_case(front_end: str, device: str, worlds: int, budget_s: float = 5.0) -> dict[str, Any]:
-    """Time one case; returns a leaderboard row."""
+def run_case(
+    front_end: str, device: str, worlds: int, budget_s: float = 5.0, min_steps: int = 3
+) -> dict[str, Any]:
+    """Time one case (at least ``min_steps`` environment steps and ``budget_s`` seconds);
+    returns a leaderboard row. An episode that ends is reset, as a training loop does (the
+    vector env resets its worlds itself), and the resets count in the time."""
     from pourbench.envs import default_solver_config
     from pourbench.envs.pour import PourEnv
     from pourbench.envs.vector import PourVectorEnv
@@ -60,11 +64,16 @@ def run_case(front_end: str, device: str, worlds: int, budget_s: float = 5.0) ->
         env.reset(seed=0)
         action = np.tile(np.array([0.5, 1.0], np.float32), (worlds, 1))
         batch = env.batch
+    def step() -> None:
+        _, _, terminated, truncated, _ = env.step(action)
+        if front_end == "single" and (terminated or truncated):
+            env.reset()
+
     for _ in range(2):
-        env.step(action)
+        step()
     steps, t0 = 0, time.perf_counter()
-    while steps < 3 or time.perf_counter() - t0 < budget_s:
-        env.step(action)
+    while steps < min_steps or time.perf_counter() - t0 < budget_s:
+        step()
         steps += 1
     wall = time.perf_counter() - t0
     grams = np.mean([batch.solver.particle_mass(w) * 1e3 for w in range(worlds)])
