@@ -64,6 +64,7 @@ def run_case(
         env.reset(seed=0)
         action = np.tile(np.array([0.5, 1.0], np.float32), (worlds, 1))
         batch = env.batch
+
     def step() -> None:
         _, _, terminated, truncated, _ = env.step(action)
         if front_end == "single" and (terminated or truncated):
