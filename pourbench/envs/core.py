@@ -271,16 +271,19 @@ class PourBatch:
         th = self.tilt[world]
         return pos, np.array([math.cos(th / 2), 0.0, math.sin(th / 2), 0.0])
 
-    def _place(self, world: int, pos: np.ndarray, quat: np.ndarray) -> None:
-        """Set the pouring container's pose in MuJoCo and in the fluid collider."""
-        d = self.datas[world]
-        mid = self.mocap_id[self.worlds[world].container]
-        d.mocap_pos[mid] = pos
-        d.mocap_quat[mid] = quat
-        # the solver sweeps the collider from its last step's pose to this one
-        self.solver.set_collider_poses(
-            [self.pour_col[world]], np.array([[*pos, quat[1], quat[2], quat[3], quat[0]]])
-        )
+    def _place(self, worlds: list[int]) -> None:
+        """Set the pouring containers' poses (:meth:`pouring_pose`) of ``worlds`` in MuJoCo and
+        in the fluid colliders, the latter in one call."""
+        poses = []
+        for w in worlds:
+            pos, quat = self.pouring_pose(w)
+            d = self.datas[w]
+            mid = self.mocap_id[self.worlds[w].container]
+            d.mocap_pos[mid] = pos
+            d.mocap_quat[mid] = quat
+            poses.append([*pos, quat[1], quat[2], quat[3], quat[0]])
+        # the solver sweeps each collider from its last step's pose to this one
+        self.solver.set_collider_poses([self.pour_col[w] for w in worlds], np.array(poses))
 
     # ----------------------------------------------------------------------------- reset
 
@@ -380,7 +383,7 @@ class PourBatch:
         self._park_all(d)
         self.worlds[world] = WorldState(rng, liquid, name, target, 0.0)
         self.base[world], self.tilt[world], self.max_tilt[world] = base, 0.0, 0.0
-        self._place(world, *self.pouring_pose(world))
+        self._place([world])
         mujoco.mj_forward(self.model, d)
         self.coupling.sync()
         # liquid
@@ -451,8 +454,7 @@ class PourBatch:
             f = k / self.substeps
             self.base = old_base + f * (new_base - old_base)
             self.tilt = old_tilt + f * (new_tilt - old_tilt)
-            for w in range(self.n):
-                self._place(w, *self.pouring_pose(w))
+            self._place(list(range(self.n)))
             self.coupling.step(1)
             for w in self.worlds:
                 w.substeps += 1
@@ -528,8 +530,9 @@ class PourBatch:
         """Ground-truth liquid accounting and task numbers per world (grams)."""
         keys = ("poured_g", "spilled_g", "remaining_g", "in_flight_g", "initial_g", "target_g")
         out = {k: np.zeros(self.n) for k in keys}
+        x = self.solver.positions()  # one read for every world
         for w, st in enumerate(self.worlds):
-            m = liquid_metrics(self.solver, w, [self.pour_col[w], self.recv_col[w]])
+            m = liquid_metrics(self.solver, w, [self.pour_col[w], self.recv_col[w]], x)
             out["remaining_g"][w], out["poured_g"][w] = m.inside_g
             out["spilled_g"][w], out["in_flight_g"][w] = m.spilled_g, m.in_flight_g
             out["initial_g"][w], out["target_g"][w] = st.initial_g, st.target_g

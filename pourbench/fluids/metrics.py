@@ -26,9 +26,15 @@ class LiquidMetrics:
     particles: int
 
 
-def liquid_metrics(solver: PBFSolver, world: int, containers: list[int]) -> LiquidMetrics:
-    """Liquid inside each of ``containers`` (collider indices), spilled and in flight."""
-    x = solver.positions()[solver.world_slice(world)]
+def liquid_metrics(
+    solver: PBFSolver, world: int, containers: list[int], positions: np.ndarray | None = None
+) -> LiquidMetrics:
+    """Liquid inside each of ``containers`` (collider indices), spilled and in flight.
+
+    ``positions``: every particle's position as :meth:`PBFSolver.positions` returns them, when
+    the caller measures several worlds from one read (each read copies all worlds' particles
+    from the device)."""
+    x = (solver.positions() if positions is None else positions)[solver.world_slice(world)]
     m_g = solver.particle_mass(world) * 1e3
     free = np.ones(len(x), bool)
     inside = []
