@@ -109,13 +109,26 @@ def test_no_particle_crosses_a_wall_and_every_gram_is_placed() -> None:
     assert info["poured_g"] > 30.0  # the liquid did move into the receiving container
 
 
-@pytest.mark.parametrize("liquid", ["water", "honey"])
-def test_scale_reads_the_poured_grams(liquid: str) -> None:
+@pytest.mark.parametrize(
+    "liquid, device",
+    [
+        ("water", "cpu"),
+        ("honey", "cpu"),
+        pytest.param("water", "cuda", marks=pytest.mark.gpu, id="water-cuda"),
+        pytest.param("honey", "cuda", marks=pytest.mark.gpu, id="honey-cuda"),
+    ],
+)
+def test_scale_reads_the_poured_grams(liquid: str, device: str) -> None:
     """After a pour has settled in the tray, its force sensor reads the grams in it: the
     noise-free reading within 1 %, the filtered, noisy observation within 5 g (0.15 N noise,
     1 Hz low-pass). Honey's adhesion once reached the table through the tray's bottom, and
-    the scale read 532 g for 150 g poured."""
-    env = PourEnv(liquid=liquid)
+    the scale read 532 g for 150 g poured. On CUDA too: the liquid's wrench on the tray comes
+    back from the device every substep."""
+    import dataclasses
+
+    from pourbench.envs import default_solver_config
+
+    env = PourEnv(liquid=liquid, solver=dataclasses.replace(default_solver_config(), device=device))
     env.reset(seed=1, options={"start": ABOVE, "target_g": 100.0, "initial_g": 150.0})
     batch = env.unwrapped.batch
     for k in range(50):
