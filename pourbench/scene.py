@@ -417,12 +417,10 @@ def body_clearance(
     Raises:
         UnknownNameError: a body name is not in the model.
     """
-    names = [model.body(b).name for b in range(model.nbody)]
-    ids = []
-    for n in (body1, body2):
-        if n not in names:
-            raise UnknownNameError("body", n, names)
-        ids.append(model.body(n).id)
+    ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in (body1, body2)]
+    for n, i in zip((body1, body2), ids, strict=True):
+        if i < 0:
+            raise UnknownNameError("body", n, [model.body(b).name for b in range(model.nbody)])
     geoms = [np.flatnonzero(model.geom_bodyid == b) for b in ids]
     if len(geoms[0]) == 0 or len(geoms[1]) == 0:
         return cutoff

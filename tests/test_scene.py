@@ -99,6 +99,8 @@ def test_pouring_container_clearance_to_receiving() -> None:
     mujoco.mj_forward(model, data)
     assert body_clearance(model, data) < -1e-3  # walls interpenetrate
     assert data.ncon == 0  # MuJoCo itself makes no contacts between two kinematic bodies
+    with pytest.raises(UnknownNameError, match=r"'pourng'.*pouring.*receiving"):
+        body_clearance(model, data, "pourng")  # a misspelt body: the known ones listed
 
 
 def test_movo_weighs_liquid_with_the_left_wrist_sensor() -> None:
