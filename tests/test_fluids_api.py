@@ -617,18 +617,32 @@ def test_step_fractions_rescale_with_the_step() -> None:
 
 
 def test_metrics_of_every_world_from_one_read() -> None:
-    """liquid_metrics given one read of every particle measures each world as a read of its
-    own does (the env measures all its worlds from one device read)."""
-    from pourbench.fluids.metrics import liquid_metrics
+    """liquid_metrics_all (one read, each container shape tested once for all worlds) gives
+    each world what testing its own particles in each container's frame gives."""
+    from pourbench.fluids.metrics import liquid_metrics, liquid_metrics_all
     from pourbench.fluids.scenarios import two_cup_scene
+    from pourbench.fluids.solver import inverse_transform_points
 
     scene = two_cup_scene(["water", "honey"], 60.0, num_worlds=2)
-    scene.set_tilt(2.0)
+    s = scene.solver
+    scene.set_tilt(np.array([2.0, 1.2]))  # per world
     scene.step(120)
-    s, x = scene.solver, scene.solver.positions()
-    totals = []
-    for w in range(2):
-        cups = [scene.source[w], scene.target[w]]
-        assert liquid_metrics(s, w, cups, x) == liquid_metrics(s, w, cups)
-        totals.append(liquid_metrics(s, w, cups, x).total_g)
-    assert totals == pytest.approx([60.0, 60.0], abs=0.6)  # each world's own particles
+    x = s.positions()
+    cups = {w: [scene.source[w], scene.target[w]] for w in (1, 0)}  # any order of worlds
+    got = liquid_metrics_all(s, cups, x)
+    for (w, cs), m in zip(cups.items(), got, strict=True):
+        xw = x[s.world_slice(w)]
+        free = np.ones(len(xw), bool)
+        counts = []
+        for c in cs:
+            col = s.colliders[c]
+            inside = col.shape.contains(inverse_transform_points(col.pose, xw), s.config.spacing)
+            counts.append(int((inside & free).sum()))
+            free &= ~inside
+        m_g = s.particle_mass(w) * 1e3
+        assert m.inside_g == pytest.approx([n * m_g for n in counts], abs=1e-9)
+        assert m.particles == len(xw) and m.total_g == pytest.approx(60.0, abs=0.6)
+        assert m == liquid_metrics(s, w, cs)
+    assert got[0].inside_g != got[1].inside_g  # the two pours differ: worlds kept apart
+    with pytest.raises(ValueError, match="not a container of world 0"):
+        liquid_metrics_all(s, {0: [scene.source[1], scene.target[0]]}, x)

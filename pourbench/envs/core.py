@@ -34,7 +34,7 @@ from pourbench.fluids import (
     MujocoCoupling,
     PBFSolver,
     SolverConfig,
-    liquid_metrics,
+    liquid_metrics_all,
     liquid_names,
     liquid_profile,
 )
@@ -530,9 +530,9 @@ class PourBatch:
         """Ground-truth liquid accounting and task numbers per world (grams)."""
         keys = ("poured_g", "spilled_g", "remaining_g", "in_flight_g", "initial_g", "target_g")
         out = {k: np.zeros(self.n) for k in keys}
-        x = self.solver.positions()  # one read for every world
-        for w, st in enumerate(self.worlds):
-            m = liquid_metrics(self.solver, w, [self.pour_col[w], self.recv_col[w]], x)
+        cups = {w: [self.pour_col[w], self.recv_col[w]] for w in range(self.n)}
+        metrics = liquid_metrics_all(self.solver, cups)  # one read of the particles
+        for (w, st), m in zip(enumerate(self.worlds), metrics, strict=True):
             out["remaining_g"][w], out["poured_g"][w] = m.inside_g
             out["spilled_g"][w], out["in_flight_g"][w] = m.spilled_g, m.in_flight_g
             out["initial_g"][w], out["target_g"][w] = st.initial_g, st.target_g

@@ -1,7 +1,7 @@
 """Liquids: a position-based-fluids solver in NVIDIA Warp, two-way coupled to MuJoCo."""
 
 from pourbench.fluids.coupling import MujocoCoupling
-from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics
+from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics, liquid_metrics_all
 from pourbench.fluids.params import LiquidProfile, liquid_names, liquid_profile, load_liquids
 from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell, bottle, bowl, cup, tray
 from pourbench.fluids.solver import PBFSolver, SolverConfig
@@ -19,6 +19,7 @@ __all__ = [
     "bowl",
     "cup",
     "liquid_metrics",
+    "liquid_metrics_all",
     "liquid_names",
     "liquid_profile",
     "load_liquids",

@@ -8,11 +8,12 @@ the lowest container's inner bottom (on the table or the floor); *in flight* oth
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.fluids.solver import PBFSolver, inverse_transform_points
+from pourbench.fluids.solver import PBFSolver
 
 
 @dataclass(frozen=True)
@@ -31,30 +32,74 @@ def liquid_metrics(
 ) -> LiquidMetrics:
     """Liquid inside each of ``containers`` (collider indices), spilled and in flight.
 
-    ``positions``: every particle's position as :meth:`PBFSolver.positions` returns them, when
-    the caller measures several worlds from one read (each read copies all worlds' particles
-    from the device)."""
-    x = (solver.positions() if positions is None else positions)[solver.world_slice(world)]
-    m_g = solver.particle_mass(world) * 1e3
+    ``positions``: every particle's position as :meth:`PBFSolver.positions` returns them (else
+    they are read; each read copies all worlds' particles from the device)."""
+    return liquid_metrics_all(solver, {world: containers}, positions)[0]
+
+
+def liquid_metrics_all(
+    solver: PBFSolver,
+    containers: Mapping[int, Sequence[int]],
+    positions: np.ndarray | None = None,
+) -> list[LiquidMetrics]:
+    """:func:`liquid_metrics` of each world ``w`` in ``containers`` (its container colliders
+    ``containers[w]``, the same number for every world), in that order, from one read of the
+    particles. The worlds' k-th containers that share a shape are tested in one pass."""
+    worlds = list(containers)
+    cups = [list(containers[w]) for w in worlds]
+    if len({len(c) for c in cups}) > 1:
+        raise ValueError("every world must list the same number of containers")
+    for w, cs in zip(worlds, cups, strict=True):
+        for c in cs:
+            col = solver.colliders[c]
+            if col.shape is None or col.world != w:
+                raise ValueError(f"collider {c} is not a container of world {w}")
+    x_all = solver.positions() if positions is None else positions
+    slices = [solver.world_slice(w) for w in worlds]
+    counts = np.array([s.stop - s.start for s in slices])
+    x = np.concatenate([x_all[s] for s in slices]) if worlds else np.zeros((0, 3))
+    owner = np.repeat(np.arange(len(worlds)), counts)  # row of each particle's world
     free = np.ones(len(x), bool)
-    inside = []
-    spill_level = np.inf
+    inside = np.zeros((len(worlds), len(cups[0]) if cups else 0), int)
+    spill_level = np.full(len(worlds), np.inf)
     margin = solver.config.spacing
-    for c in containers:
-        col = solver.colliders[c]
-        if col.shape is None or col.world != world:
-            raise ValueError(f"collider {c} is not a container of world {world}")
-        local = inverse_transform_points(col.pose, x)
-        mask = col.shape.contains(local, margin=margin) & free
-        free &= ~mask
-        inside.append(float(mask.sum()) * m_g)
-        bottom = col.pose[2] + col.shape.bottom_z
-        spill_level = min(spill_level, bottom)
-    spilled = free & (x[:, 2] < spill_level)
-    return LiquidMetrics(
-        total_g=len(x) * m_g,
-        inside_g=tuple(inside),
-        spilled_g=float(spilled.sum()) * m_g,
-        in_flight_g=float((free & ~spilled).sum()) * m_g,
-        particles=len(x),
-    )
+    for k in range(inside.shape[1]):
+        cols = [solver.colliders[cs[k]] for cs in cups]
+        groups: dict[int, list[int]] = {}  # shape (by identity) -> rows of the worlds using it
+        for row, col in enumerate(cols):
+            groups.setdefault(id(col.shape), []).append(row)
+        for rows in groups.values():
+            shape = cols[rows[0]].shape
+            sel = np.flatnonzero(np.isin(owner, rows))
+            poses = np.array([cols[r].pose for r in range(len(cols))])[owner[sel]]
+            local = _inverse_transform_each(poses, x[sel])
+            mask = shape.contains(local, margin=margin) & free[sel]
+            free[sel[mask]] = False
+            inside[:, k] += np.bincount(owner[sel[mask]], minlength=len(worlds))
+        bottom = np.array([col.pose[2] + col.shape.bottom_z for col in cols])
+        spill_level = np.minimum(spill_level, bottom)
+    spilled = free & (x[:, 2] < spill_level[owner])
+    n_spilled = np.bincount(owner[spilled], minlength=len(worlds))
+    n_flight = np.bincount(owner[free & ~spilled], minlength=len(worlds))
+    out = []
+    for row, w in enumerate(worlds):
+        m_g = solver.particle_mass(w) * 1e3
+        out.append(
+            LiquidMetrics(
+                total_g=int(counts[row]) * m_g,
+                inside_g=tuple(float(n) * m_g for n in inside[row]),
+                spilled_g=float(n_spilled[row]) * m_g,
+                in_flight_g=float(n_flight[row]) * m_g,
+                particles=int(counts[row]),
+            )
+        )
+    return out
+
+
+def _inverse_transform_each(poses: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Each point into the local frame of its own (x, y, z, qx, qy, qz, qw) pose (rows
+    matched), by the same arithmetic as :func:`inverse_transform_points`."""
+    u, w = -poses[:, 3:6], poses[:, 6:7]
+    v = pts - poses[:, :3]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
