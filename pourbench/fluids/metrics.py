@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.fluids.solver import PBFSolver
+from pourbench.fluids.solver import PBFSolver, inverse_transform_points
 
 
 @dataclass(frozen=True)
@@ -65,14 +65,14 @@ def liquid_metrics_all(
     margin = solver.config.spacing
     for k in range(inside.shape[1]):
         cols = [solver.colliders[cs[k]] for cs in cups]
+        poses = np.array([col.pose for col in cols])
         groups: dict[int, list[int]] = {}  # shape (by identity) -> rows of the worlds using it
         for row, col in enumerate(cols):
             groups.setdefault(id(col.shape), []).append(row)
         for rows in groups.values():
             shape = cols[rows[0]].shape
             sel = np.flatnonzero(np.isin(owner, rows))
-            poses = np.array([cols[r].pose for r in range(len(cols))])[owner[sel]]
-            local = _inverse_transform_each(poses, x[sel])
+            local = inverse_transform_points(poses[owner[sel]], x[sel])
             mask = shape.contains(local, margin=margin) & free[sel]
             free[sel[mask]] = False
             inside[:, k] += np.bincount(owner[sel[mask]], minlength=len(worlds))
@@ -94,12 +94,3 @@ def liquid_metrics_all(
             )
         )
     return out
-
-
-def _inverse_transform_each(poses: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Each point into the local frame of its own (x, y, z, qx, qy, qz, qw) pose (rows
-    matched), by the same arithmetic as :func:`inverse_transform_points`."""
-    u, w = -poses[:, 3:6], poses[:, 6:7]
-    v = pts - poses[:, :3]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)

@@ -1250,21 +1250,24 @@ def _disc_points(rc: float, spacing: float, phase: float) -> np.ndarray:
 
 
 def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors ``v`` (..., 3) by unit quaternion ``q`` = (x, y, z, w)."""
-    u, w = np.asarray(q[:3], float), float(q[3])
+    """Rotate vectors ``v`` (..., 3) by unit quaternion ``q`` = (x, y, z, w): one (4,) for
+    every vector, or one per vector (..., 4)."""
+    q = np.asarray(q, float)
+    u, w = q[..., :3], q[..., 3:]
     v = np.asarray(v, float)
     t = 2.0 * np.cross(u, v)
     return v + w * t + np.cross(u, t)
 
 
 def transform_points(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Apply a (x, y, z, qx, qy, qz, qw) pose to local points."""
+    """Apply a (x, y, z, qx, qy, qz, qw) pose (or one per point, (..., 7)) to local points."""
     pose = np.asarray(pose, float)
-    return quat_rotate(pose[3:], pts) + pose[:3]
+    return quat_rotate(pose[..., 3:], pts) + pose[..., :3]
 
 
 def inverse_transform_points(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """World points into the local frame of a (x, y, z, qx, qy, qz, qw) pose."""
+    """World points into the local frame of a (x, y, z, qx, qy, qz, qw) pose (or of one pose
+    per point, (..., 7))."""
     pose = np.asarray(pose, float)
-    qc = np.array([-pose[3], -pose[4], -pose[5], pose[6]])
-    return quat_rotate(qc, np.asarray(pts, float) - pose[:3])
+    qc = np.concatenate([-pose[..., 3:6], pose[..., 6:]], axis=-1)
+    return quat_rotate(qc, np.asarray(pts, float) - pose[..., :3])
