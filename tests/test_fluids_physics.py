@@ -273,19 +273,20 @@ def test_cuda_determinism_and_batching() -> None:
     check_determinism_and_batching("cuda")
 
 
-@pytest.mark.gpu
-def test_cuda_graph_replays_the_step_exactly() -> None:
-    """The step replayed as a CUDA graph is the launch-by-launch step: a cup tilting in two
-    worlds (poses set every step, re-sorts on their steps, a scene change that re-records the
-    graph) gives bit-identical positions and reaction forces."""
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.gpu, id="cuda")])
+def test_graph_replays_the_step_exactly(device: str) -> None:
+    """The step replayed as a graph (CUDA graph, or Warp's CPU capture) is the launch-by-launch
+    step: a cup tilting in two worlds (poses set every step, so the swept collision reads
+    start and end poses the graph copies; re-sorts on their steps; a scene change that
+    re-records the graph) gives bit-identical positions and reaction forces."""
 
     import warp as wp
 
-    if not wp.is_mempool_enabled("cuda"):
+    if device == "cuda" and not wp.is_mempool_enabled("cuda"):
         pytest.skip("this CUDA device has no memory pool: the solver does not record graphs")
 
     def run(graph: bool) -> tuple[np.ndarray, np.ndarray]:
-        s = PBFSolver(2, SolverConfig(device="cuda", cuda_graph=graph))
+        s = PBFSolver(2, SolverConfig(device=device, graph=graph))
         cups = []
         for w in range(2):
             cups.append(s.add_container(w, cup(0.03, 0.06), body=s.new_body_slot()))

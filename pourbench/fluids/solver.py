@@ -95,10 +95,11 @@ class SolverConfig:
             below 1 cm/s after 3 s) at the price of ~0.5 % more compression.
         reorder_every: steps between spatial re-sorts of the particle arrays (0: never).
             Particle order inside a world therefore changes over time.
-        cuda_graph: on a CUDA device, record a step's ~27 launches once as a CUDA graph and
-            replay it (re-recorded when the scene changes); the re-sort and the list-capacity
-            check run outside it on their steps. Same kernels and order, so the same
-            results; no effect on the CPU, or on a device without Warp's memory pool.
+        graph: record a step's ~27 launches once as a graph (a CUDA graph, or Warp's CPU
+            capture) and replay it (re-recorded when the scene changes): no Python and no
+            argument packing per launch. The re-sort and the list-capacity check run outside
+            it on their steps. Same kernels and order, so the same results. On a CUDA device
+            without Warp's memory pool the step is launched kernel by kernel.
         viscosity_rate: κ of the XSPH mapping (dimensionless, per unit FleX viscosity): each
             step of ``calibration_dt`` relaxes a velocity toward its neighbours' kernel mean by
             a = κν / (1 + κν); other steps use 1 − (1 − a)^(dt / calibration_dt), the same
@@ -136,7 +137,7 @@ class SolverConfig:
     pair_lists: str = "auto"
     sor: float = 0.7
     reorder_every: int = 16
-    cuda_graph: bool = True
+    graph: bool = True
     viscosity_rate: float = 1.0
     calibration_dt: float = 1.0 / 240.0
     cohesion_accel: float = 100.0
@@ -607,7 +608,7 @@ class PBFSolver:
         self.cell_sorted = wp.zeros(max(n, 1), dtype=wp.vec3i, device=dev)
         self._upload_poses(prev_too=True)
         self._cmds: dict[str, wp.Launch] = {}
-        self._graph: wp.Graph | None = None  # the recorded step, replayed on CUDA
+        self._graph: wp.Graph | None = None  # the recorded step, replayed
         self._moved = False  # x_prev holds the start of a step whose end is x
         self._dirty = False
 
@@ -623,6 +624,11 @@ class PBFSolver:
             c.pose = wp.array(poses, dtype=wp.transform, device=self.device)
             c.pose_prev = wp.clone(c.pose)
             c.com = wp.array(coms, dtype=wp.vec3, device=self.device)
+            # on the CPU the arrays' own memory, written through numpy without a copy
+            self._host_poses = (c.pose.numpy(), c.com.numpy()) if self.device.is_cpu else None
+        elif self._host_poses is not None:
+            self._host_poses[0][:] = poses
+            self._host_poses[1][:] = coms
         else:
             c.pose.assign(poses)
             c.com.assign(coms)
@@ -718,8 +724,8 @@ class PBFSolver:
         if n == 0:
             self._advance_clock()
             return
-        # the step's sorts allocate scratch memory, which a graph can hold only from a pool
-        if self.device.is_cuda and cfg.cuda_graph and wp.is_mempool_enabled(self.device):
+        # on CUDA the step's sorts allocate scratch memory, which a graph holds only from a pool
+        if cfg.graph and (self.device.is_cpu or wp.is_mempool_enabled(self.device)):
             if self._graph is None:
                 with wp.ScopedCapture(device=self.device) as capture:
                     self._step_kernels()
