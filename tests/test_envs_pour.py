@@ -109,6 +109,32 @@ def test_no_particle_crosses_a_wall_and_every_gram_is_placed() -> None:
     assert info["poured_g"] > 30.0  # the liquid did move into the receiving container
 
 
+def test_the_pouring_container_tilts_about_its_rim() -> None:
+    """The pouring container turns about the y axis through its rim's centre: the rim stays
+    where the base's position puts it, the body's quaternion is the tilt about y, and the
+    fluid's collider has the MuJoCo body's pose, in every world of a batch."""
+    import mujoco
+
+    venv = PourVectorEnv(3)
+    venv.reset(seed=2, options={"start": ABOVE})  # above the receiving tray: tilting allowed
+    batch = venv.batch
+    for _ in range(4):
+        venv.step(np.array([[1.0, 0.0], [0.3, 0.5], [-0.2, 1.0]]))
+    assert batch.tilt.max() > 0.1  # the worlds did tilt
+    for w in range(3):
+        mid = batch.mocap_id[batch.worlds[w].container]
+        pos, quat = batch.datas[w].mocap_pos[mid], batch.datas[w].mocap_quat[mid]
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, quat)
+        h = batch.rim_height[w]
+        rim = pos + rot.reshape(3, 3) @ [0.0, 0.0, h]
+        np.testing.assert_allclose(rim, batch.base[w] + [0.0, 0.0, h], atol=1e-12)
+        th = batch.tilt[w]
+        np.testing.assert_allclose(quat, [np.cos(th / 2), 0.0, np.sin(th / 2), 0.0], atol=1e-12)
+        collider = batch.solver.colliders[batch.pour_col[w]].pose
+        np.testing.assert_allclose(collider, [*pos, *quat[1:], quat[0]], atol=1e-12)
+
+
 @pytest.mark.parametrize(
     "liquid, device",
     [

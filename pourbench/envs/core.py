@@ -167,11 +167,6 @@ class WorldState:
     done: bool = False
 
 
-def _rot_y(theta: float) -> np.ndarray:
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
 class PourBatch:
     """``num_worlds`` pouring worlds stepped together (see the module docstring).
 
@@ -241,6 +236,7 @@ class PourBatch:
         self.base = np.zeros((self.n, 3))
         self.tilt = np.zeros(self.n)
         self.max_tilt = np.zeros(self.n)
+        self.rim_height = np.zeros(self.n)  # of each world's pouring container, m
         self.worlds: list[WorldState | None] = [None] * self.n
 
     # ----------------------------------------------------------------------------- setup
@@ -262,28 +258,30 @@ class PourBatch:
         n = len(container_lattice(get_container(container).shape, spacing))  # cached
         return n * spacing**3 * 1e3 * density  # g
 
-    def pouring_pose(self, world: int) -> tuple[np.ndarray, np.ndarray]:
-        """Body position (m) and quaternion (w, x, y, z) of world's pouring container."""
-        c = get_container(self.worlds[world].container)
-        rim = self.base[world] + [0.0, 0.0, c.rim_height]
-        rot = _rot_y(self.tilt[world])
-        pos = rim + rot @ np.array([0.0, 0.0, -c.rim_height])
-        th = self.tilt[world]
-        return pos, np.array([math.cos(th / 2), 0.0, math.sin(th / 2), 0.0])
+    def pouring_poses(self, worlds: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """Body positions (k, 3; m) and quaternions (k, 4; w, x, y, z) of ``worlds``' pouring
+        containers: the base's position, tilted by ``tilt`` about the y axis through the rim's
+        centre, height ``rim_height`` above the base."""
+        w = np.asarray(worlds, int)
+        h, th = self.rim_height[w], self.tilt[w]
+        pos = self.base[w].copy()
+        pos[:, 2] += h  # the rim's centre, which the tilt keeps in place
+        pos[:, 0] += np.sin(th) * -h
+        pos[:, 2] += np.cos(th) * -h
+        z = np.zeros(len(w))
+        return pos, np.stack([np.cos(th / 2), z, np.sin(th / 2), z], axis=1)
 
     def _place(self, worlds: list[int]) -> None:
-        """Set the pouring containers' poses (:meth:`pouring_pose`) of ``worlds`` in MuJoCo and
-        in the fluid colliders, the latter in one call."""
-        poses = []
-        for w in worlds:
-            pos, quat = self.pouring_pose(w)
-            d = self.datas[w]
+        """Set the pouring containers' poses (:meth:`pouring_poses`) of ``worlds`` in MuJoCo
+        and in the fluid colliders, the latter in one call."""
+        pos, quat = self.pouring_poses(worlds)
+        for k, w in enumerate(worlds):
             mid = self.mocap_id[self.worlds[w].container]
-            d.mocap_pos[mid] = pos
-            d.mocap_quat[mid] = quat
-            poses.append([*pos, quat[1], quat[2], quat[3], quat[0]])
+            self.datas[w].mocap_pos[mid] = pos[k]
+            self.datas[w].mocap_quat[mid] = quat[k]
         # the solver sweeps each collider from its last step's pose to this one
-        self.solver.set_collider_poses([self.pour_col[w] for w in worlds], np.array(poses))
+        poses = np.concatenate([pos, quat[:, 1:], quat[:, :1]], axis=1)
+        self.solver.set_collider_poses([self.pour_col[w] for w in worlds], poses)
 
     # ----------------------------------------------------------------------------- reset
 
@@ -383,6 +381,7 @@ class PourBatch:
         self._park_all(d)
         self.worlds[world] = WorldState(rng, liquid, name, target, 0.0)
         self.base[world], self.tilt[world], self.max_tilt[world] = base, 0.0, 0.0
+        self.rim_height[world] = get_container(name).rim_height
         self._place([world])
         mujoco.mj_forward(self.model, d)
         self.coupling.sync()

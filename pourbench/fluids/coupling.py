@@ -31,16 +31,17 @@ _GEOM_KIND = {
 
 
 def quat_mul_wxyz(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of (w, x, y, z) quaternions."""
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array(
+    """Hamilton product of (w, x, y, z) quaternions, (4,) or stacked (..., 4)."""
+    w1, x1, y1, z1 = np.moveaxis(np.asarray(a), -1, 0)
+    w2, x2, y2, z2 = np.moveaxis(np.asarray(b), -1, 0)
+    return np.stack(
         [
             w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
             w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
             w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
             w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ]
+        ],
+        axis=-1,
     )
 
 
@@ -51,6 +52,17 @@ class _Binding:
     body: int
     local_pos: np.ndarray
     local_quat: np.ndarray  # w, x, y, z
+
+
+@dataclass
+class _Gather:
+    """Bindings sorted by world: ``groups`` holds (world, rows, body ids) per world."""
+
+    count: int
+    colliders: list[int]
+    groups: list[tuple[int, slice, np.ndarray]]
+    local_pos: np.ndarray  # (count, 3)
+    local_quat: np.ndarray  # (count, 4), w x y z
 
 
 class MujocoCoupling:
@@ -74,6 +86,7 @@ class MujocoCoupling:
             )
         self.solver, self.model, self.datas = solver, model, list(datas)
         self.bindings: list[_Binding] = []
+        self._gathered: _Gather | None = None
         self.slots: dict[tuple[int, int], int] = {}
         for d in self.datas:
             mujoco.mj_kinematics(model, d)
@@ -167,21 +180,48 @@ class MujocoCoupling:
         self.sync()
         return out
 
+    def _gather(self) -> _Gather:
+        """The bindings as arrays, grouped by world (rebuilt when bindings are added)."""
+        if self._gathered is None or self._gathered.count != len(self.bindings):
+            b = self.bindings
+            order = sorted(range(len(b)), key=lambda k: b[k].world)
+            worlds = np.array([b[k].world for k in order])
+            cuts = np.flatnonzero(np.diff(worlds)) + 1
+            bodies = np.array([b[k].body for k in order])
+            self._gathered = _Gather(
+                count=len(b),
+                colliders=[b[k].collider for k in order],
+                groups=[
+                    (int(w[0]), slice(int(r[0]), int(r[-1]) + 1), bodies[r])
+                    for w, r in zip(
+                        np.split(worlds, cuts), np.split(np.arange(len(b)), cuts), strict=True
+                    )
+                ],
+                local_pos=np.array([b[k].local_pos for k in order], float),
+                local_quat=np.array([b[k].local_quat for k in order], float),
+            )
+        return self._gathered
+
     def sync(self) -> None:
-        """Copy every bound body's current pose (from ``MjData``) to its collider."""
+        """Copy every bound body's current pose (from ``MjData``) to its collider: one read of
+        each world's body poses, then the frame offsets of all bindings at once."""
         if not self.bindings:
             return
-        idx, poses, coms = [], [], []
-        for b in self.bindings:
-            d = self.datas[b.world]
-            xq = d.xquat[b.body]
-            rot = d.xmat[b.body].reshape(3, 3)
-            q = quat_mul_wxyz(xq, b.local_quat)
-            pos = d.xpos[b.body] + rot @ b.local_pos
-            idx.append(b.collider)
-            poses.append([*pos, q[1], q[2], q[3], q[0]])
-            coms.append(d.xipos[b.body])
-        self.solver.set_collider_poses(idx, np.array(poses), np.array(coms))
+        g = self._gather()
+        n = g.count
+        xq, xm, xp, com = np.empty((n, 4)), np.empty((n, 9)), np.empty((n, 3)), np.empty((n, 3))
+        for w, rows, bodies in g.groups:
+            d = self.datas[w]
+            xq[rows], xm[rows], xp[rows], com[rows] = (
+                d.xquat[bodies],
+                d.xmat[bodies],
+                d.xpos[bodies],
+                d.xipos[bodies],
+            )
+        q = quat_mul_wxyz(xq, g.local_quat)
+        pos = xp + np.einsum("nij,nj->ni", xm.reshape(n, 3, 3), g.local_pos)
+        poses = np.concatenate([pos, q[:, 1:], q[:, :1]], axis=1)
+        self.solver.set_collider_poses(g.colliders, poses, com)
 
     def apply(self) -> None:
         """Write the liquid's last reaction wrench on each coupled body to ``xfrc_applied``."""
