@@ -80,6 +80,37 @@ def _block_over_geoms(
     return model, data, solver, coupling
 
 
+def test_colliders_take_the_geoms_poses_mujoco_computes() -> None:
+    """Every collider bound to a geom has the pose MuJoCo gives that geom (position and
+    rotation), in each world, for bodies turned differently per world and geoms offset and
+    rotated within them, and again after the bodies moved."""
+    xml = f"""<mujoco><option timestep="{DT}"/><worldbody>
+      <geom name="floor" type="plane" size="1 1 0.1"/>
+      <body name="arm" pos="0.1 -0.2 0.3" quat="0.9 0.1 0.3 -0.2">
+        <joint type="ball"/>
+        <geom type="box" size="0.02 0.03 0.04" pos="0.05 0.01 -0.02" quat="0.5 0.5 -0.5 0.1"/>
+        <geom type="capsule" size="0.01 0.03" pos="-0.02 0.04 0.0" euler="0.3 -0.7 1.1"/>
+      </body></worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    datas = [mujoco.MjData(model) for _ in range(2)]
+    rng = np.random.default_rng(5)
+    coupling = MujocoCoupling(PBFSolver(2), model, datas)
+    coupling.add_geoms()
+    for _ in range(2):
+        for d in datas:
+            q = rng.normal(size=4)
+            d.qpos[:4] = q / np.linalg.norm(q)
+            mujoco.mj_kinematics(model, d)
+        coupling.sync()
+        for k, b in enumerate(coupling.bindings):  # geom by geom, each in world 0 then 1
+            gid, d = k // 2, datas[b.world]
+            pose = coupling.solver.colliders[b.collider].pose
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, np.r_[pose[6], pose[3:6]])
+            np.testing.assert_allclose(pose[:3], d.geom_xpos[gid], atol=1e-12)
+            np.testing.assert_allclose(rot, d.geom_xmat[gid], atol=1e-12)
+
+
 @pytest.mark.parametrize("kind", sorted(GEOMS))
 def test_mujoco_geoms_hold_liquid_up(kind: str) -> None:
     """A block of water dropped on a MuJoCo geom ends up outside it, resting on it."""

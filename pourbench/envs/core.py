@@ -264,12 +264,13 @@ class PourBatch:
         centre, height ``rim_height`` above the base."""
         w = np.asarray(worlds, int)
         h, th = self.rim_height[w], self.tilt[w]
-        pos = self.base[w].copy()
+        pos = self.base[w]  # a copy (fancy indexing)
         pos[:, 2] += h  # the rim's centre, which the tilt keeps in place
         pos[:, 0] += np.sin(th) * -h
         pos[:, 2] += np.cos(th) * -h
-        z = np.zeros(len(w))
-        return pos, np.stack([np.cos(th / 2), z, np.sin(th / 2), z], axis=1)
+        quat = np.zeros((len(w), 4))
+        quat[:, 0], quat[:, 2] = np.cos(th / 2), np.sin(th / 2)
+        return pos, quat
 
     def _place(self, worlds: list[int]) -> None:
         """Set the pouring containers' poses (:meth:`pouring_poses`) of ``worlds`` in MuJoCo
@@ -280,7 +281,8 @@ class PourBatch:
             self.datas[w].mocap_pos[mid] = pos[k]
             self.datas[w].mocap_quat[mid] = quat[k]
         # the solver sweeps each collider from its last step's pose to this one
-        poses = np.concatenate([pos, quat[:, 1:], quat[:, :1]], axis=1)
+        poses = np.empty((len(worlds), 7))  # x y z qx qy qz qw
+        poses[:, :3], poses[:, 3:6], poses[:, 6] = pos, quat[:, 1:], quat[:, 0]
         self.solver.set_collider_poses([self.pour_col[w] for w in worlds], poses)
 
     # ----------------------------------------------------------------------------- reset

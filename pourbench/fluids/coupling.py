@@ -30,19 +30,11 @@ _GEOM_KIND = {
 }
 
 
-def quat_mul_wxyz(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of (w, x, y, z) quaternions, (4,) or stacked (..., 4)."""
-    w1, x1, y1, z1 = np.moveaxis(np.asarray(a), -1, 0)
-    w2, x2, y2, z2 = np.moveaxis(np.asarray(b), -1, 0)
-    return np.stack(
-        [
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-        ],
-        axis=-1,
-    )
+def quat_right_matrix(b: np.ndarray) -> np.ndarray:
+    """The 4×4 matrix R(b) with a ⊗ b = R(b) a for (w, x, y, z) quaternions (Hamilton
+    product), so that a stack of bindings composes with one matrix product."""
+    w, x, y, z = np.asarray(b, float)
+    return np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
 
 
 @dataclass
@@ -62,7 +54,7 @@ class _Gather:
     colliders: list[int]
     groups: list[tuple[int, slice, np.ndarray]]
     local_pos: np.ndarray  # (count, 3)
-    local_quat: np.ndarray  # (count, 4), w x y z
+    right_mul: np.ndarray  # (count, 4, 4): quat_right_matrix of each binding's local_quat
 
 
 class MujocoCoupling:
@@ -198,7 +190,7 @@ class MujocoCoupling:
                     )
                 ],
                 local_pos=np.array([b[k].local_pos for k in order], float),
-                local_quat=np.array([b[k].local_quat for k in order], float),
+                right_mul=np.array([quat_right_matrix(b[k].local_quat) for k in order]),
             )
         return self._gathered
 
@@ -218,9 +210,10 @@ class MujocoCoupling:
                 d.xpos[bodies],
                 d.xipos[bodies],
             )
-        q = quat_mul_wxyz(xq, g.local_quat)
-        pos = xp + np.einsum("nij,nj->ni", xm.reshape(n, 3, 3), g.local_pos)
-        poses = np.concatenate([pos, q[:, 1:], q[:, :1]], axis=1)
+        q = (g.right_mul @ xq[:, :, None])[:, :, 0]  # body quaternion ⊗ local quaternion
+        poses = np.empty((n, 7))  # x y z qx qy qz qw
+        poses[:, :3] = xp + (xm.reshape(n, 3, 3) @ g.local_pos[:, :, None])[:, :, 0]
+        poses[:, 3:6], poses[:, 6] = q[:, 1:], q[:, 0]
         self.solver.set_collider_poses(g.colliders, poses, com)
 
     def apply(self) -> None:
