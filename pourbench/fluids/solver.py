@@ -323,6 +323,7 @@ class PBFSolver:
         self._world = np.zeros(0, np.int32)
         self._dirty = True
         self._poses_pending = False
+        self._host_poses: tuple[np.ndarray, np.ndarray] | None = None  # set by _upload_poses
         self.time = 0.0
         self.steps = 0
         self._capacity_warned = False
