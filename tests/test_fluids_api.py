@@ -16,7 +16,7 @@ from pourbench.fluids import liquid_profile
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.meshes import check_closed_mesh, convex_hull
 from pourbench.fluids.shapes import BoxShell, bottle, bowl, cup
-from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.solver import PBFSolver, SolverConfig, cuda_available
 
 DT = SolverConfig().dt
 
@@ -250,11 +250,28 @@ def test_unknown_liquid_and_bad_profile_values() -> None:
         ({"iterations": 0}, "iterations"),
         ({"sleep_threshold": -0.01}, "sleep_threshold"),
         ({"sleep_threshold": float("nan")}, "sleep_threshold"),
+        ({"iterations": 2.5}, "iterations"),
+        ({"max_neighbours": 3.5}, "max_neighbours"),
+        ({"reorder_every": -1}, "reorder_every"),
+        ({"sor": float("nan")}, "sor"),
+        ({"sor": 0.0}, "sor"),
+        ({"gravity": (0.0, 0.0, float("nan"))}, "gravity z"),
+        ({"gravity": (0.0, -9.81)}, "gravity"),
+        ({"graph": "yes"}, "graph"),
+        ({"device": "tpu"}, "device"),
     ],
 )
 def test_config_rejects_bad_values(kwargs, name) -> None:
     with pytest.raises(InvalidParameterError, match=name):
         SolverConfig(**kwargs)
+
+
+def test_a_missing_cuda_device_is_named() -> None:
+    import warp as wp
+
+    count = wp.get_cuda_device_count() if cuda_available() else 0
+    with pytest.raises(InvalidParameterError, match=f"'cuda:{count}': Warp sees {count} CUDA"):
+        PBFSolver(1, SolverConfig(device=f"cuda:{count}"))
 
 
 def test_collider_input_errors() -> None:

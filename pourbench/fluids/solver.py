@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
+import re
 import warnings
 from dataclasses import dataclass, field
 
@@ -160,14 +162,31 @@ class SolverConfig:
             "sleep_threshold",
         ):
             check_finite(name, getattr(self, name), minimum=0.0)
-        if int(self.max_neighbours) < 1:
-            raise InvalidParameterError(f"max_neighbours must be >= 1, got {self.max_neighbours!r}")
+        check_finite("sor", self.sor, minimum=1e-9)
+        for name, minimum in (("iterations", 1), ("max_neighbours", 1), ("reorder_every", 0)):
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Integral) or isinstance(value, bool):
+                raise InvalidParameterError(f"{name} must be an integer, got {value!r}")
+            if value < minimum:
+                raise InvalidParameterError(f"{name} must be >= {minimum}, got {value!r}")
         if self.pair_lists not in ("auto", "half", "full"):
             raise InvalidParameterError(
                 f"pair_lists must be 'auto', 'half' or 'full', got {self.pair_lists!r}"
             )
-        if int(self.iterations) < 1:
-            raise InvalidParameterError(f"iterations must be >= 1, got {self.iterations!r}")
+        if not isinstance(self.graph, bool):
+            raise InvalidParameterError(f"graph must be True or False, got {self.graph!r}")
+        try:
+            gravity = tuple(self.gravity)
+        except TypeError:
+            gravity = ()
+        if len(gravity) != 3:
+            raise InvalidParameterError(f"gravity must be 3 numbers (m/s²), got {self.gravity!r}")
+        for axis, value in zip("xyz", gravity, strict=True):
+            check_finite(f"gravity {axis}", value)
+        if not isinstance(self.device, str) or not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
+            raise InvalidParameterError(
+                f"device must be 'cpu', 'cuda' or 'cuda:N', got {self.device!r}"
+            )
 
     @property
     def h(self) -> float:
@@ -296,6 +315,14 @@ class PBFSolver:
             raise InvalidParameterError(f"num_worlds must be >= 1, got {num_worlds!r}")
         self.num_worlds = int(num_worlds)
         self.config = config or SolverConfig()
+        if self.config.device != "cpu":
+            count = wp.get_cuda_device_count() if cuda_available() else 0
+            index = int(self.config.device.partition(":")[2] or 0)
+            if index >= count:
+                raise InvalidParameterError(
+                    f"device {self.config.device!r}: Warp sees {count} CUDA device(s); "
+                    "use device='cpu'"
+                )
         self.device = wp.get_device(self.config.device)
         mode = self.config.pair_lists
         if mode == "auto":
