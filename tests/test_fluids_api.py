@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from pourbench.errors import CapacityError, InvalidParameterError, UnknownNameError
-from pourbench.fluids import liquid_profile
+from pourbench.fluids import liquid_metrics, liquid_profile
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.meshes import check_closed_mesh, convex_hull
-from pourbench.fluids.shapes import BoxShell, bottle, bowl, cup
+from pourbench.fluids.shapes import BoxShell, RevolvedShell, bottle, bowl, cup
 from pourbench.fluids.solver import PBFSolver, SolverConfig, cuda_available
 
 DT = SolverConfig().dt
@@ -272,6 +272,120 @@ def test_a_missing_cuda_device_is_named() -> None:
     count = wp.get_cuda_device_count() if cuda_available() else 0
     with pytest.raises(InvalidParameterError, match=f"'cuda:{count}': Warp sees {count} CUDA"):
         PBFSolver(1, SolverConfig(device=f"cuda:{count}"))
+
+
+_NO_ROTATION = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+
+
+def _two_worlds() -> tuple[PBFSolver, int]:
+    """Two worlds, a cup in world 0 (the collider returned)."""
+    s = PBFSolver(2)
+    return s, s.add_container(0, cup(0.02, 0.04))
+
+
+@pytest.mark.parametrize(
+    "call,match",
+    [
+        (lambda s, c: s.add_collider(0, "sphere", [-0.05]), "'sphere' sizes must be > 0"),
+        (lambda s, c: s.add_collider(0, "sphere", [0.1, 0.2]), "'sphere' collider takes 1"),
+        (lambda s, c: s.add_collider(0, "capsule", [0.1]), "'capsule' collider takes 2"),
+        (lambda s, c: s.add_collider(0, "revolved", [0.004, 0, 0]), "add_container"),
+        (lambda s, c: s.add_collider(0, "sphere", [0.01], body=3), "body slot 3 not in"),
+        (lambda s, c: s.add_collider(0, "sphere", [0.01], body=-5), "body slot -5"),
+        (lambda s, c: s.add_collider(0, "sphere", [0.01], pose=[0, 0, 0]), r"pose .*\(7,\)"),
+        (lambda s, c: s.add_collider(0, "sphere", [0.01], pose=[0] * 7), "norm 0, not 1"),
+        (lambda s, c: s.add_collider(1.5, "sphere", [0.01]), "world must be an integer"),
+        (lambda s, c: s.add_particles(0, np.zeros((2, 6))), r"positions .*\(n, 3\)"),
+        (lambda s, c: s.add_particles(0, np.zeros((3, 3)), np.zeros((1, 3))), "velocities"),
+        (lambda s, c: s.fill(1, c, 10.0), "collider 0 is in world 0, not in world 1"),
+        (lambda s, c: s.fill(0, -1, 10.0), "collider -1 not in"),
+        (lambda s, c: s.fill(0, 4, 10.0), "collider 4 not in"),
+        (lambda s, c: s.set_collider_poses([-1], [_NO_ROTATION]), "collider -1 not in"),
+        (lambda s, c: s.set_collider_poses([c], [_NO_ROTATION[:6]]), r"\(1, 7\)"),
+        (lambda s, c: s.set_collider_poses([c], [[0, 0, 0, 0, 0, 0, 3.0]]), "norm 3"),
+        (lambda s, c: s.set_collider_poses([c], [_NO_ROTATION], com=[[math.nan] * 3]), "com"),
+        (lambda s, c: s.set_container_shape(3, cup(0.02, 0.04)), "collider 3 not in"),
+        (lambda s, c: s.collider_sdf(7, [[0.0, 0.0, 0.0]]), "collider 7 not in"),
+        (lambda s, c: s.step(-3), "steps must be >= 0"),
+        (lambda s, c: s.step(2.9), "steps must be an integer"),
+        (lambda s, c: s.world_slice(7), "world 7 not in"),
+        (lambda s, c: s.particle_mass(-1), "world -1 not in"),
+        (lambda s, c: liquid_metrics(s, 0, [c], positions=np.zeros((5, 2))), "positions"),
+        (lambda s, c: liquid_metrics(s, 1, [c]), "not a container of world 1"),
+        (lambda s, c: liquid_metrics(s, 0, [9]), "collider 9 not in"),
+    ],
+)
+def test_bad_calls_name_the_value_and_change_nothing(call, match) -> None:
+    """Each bad call raises a pourbench error naming what is wrong, and the scene it was made
+    on still fills and steps as before (nothing half-added)."""
+    s, c = _two_worlds()
+    before = len(s.colliders), s.num_body_slots, s.num_particles
+    with pytest.raises(InvalidParameterError, match=match):
+        call(s, c)
+    assert (len(s.colliders), s.num_body_slots, s.num_particles) == before
+    s.fill(0, c, 10.0)
+    s.step(2)
+    assert np.isfinite(s.positions()).all()
+
+
+def test_a_failed_coupling_call_leaves_the_coupling_working() -> None:
+    """Bad worlds, offsets or geoms are refused before any slot or binding is made, so the
+    coupling steps on afterwards with its earlier bindings."""
+    xml = f"""<mujoco><option timestep="{DT!r}"/><worldbody>
+      <geom name="floor" type="plane" size="1 1 0.1"/>
+      <body name="cupbody" pos="0 0 0.1"><freejoint/><geom type="box" size=".01 .01 .01"/>
+      </body></worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    coupling = MujocoCoupling(PBFSolver(1), model, [mujoco.MjData(model)])
+    coupling.add_container("cupbody", cup(0.02, 0.04))
+    state = len(coupling.bindings), dict(coupling.slots), len(coupling.solver.colliders)
+    bad = [
+        (lambda: coupling.add_container("cupbody", cup(0.02, 0.04), world=5), "world 5"),
+        (lambda: coupling.add_container("cupbody", cup(0.02, 0.04), world=-1), "world -1"),
+        (lambda: coupling.add_container("cupbody", cup(0.02, 0.04), local_pos=(0, 0, math.nan)),
+         "local_pos"),
+        (lambda: coupling.add_container("cupbody", cup(0.02, 0.04), local_quat=(0, 0, 0, 0)),
+         "local_quat"),
+        (lambda: coupling.add_container(99, cup(0.02, 0.04)), "body 99 not in"),
+        (lambda: coupling.add_container("cupbody", "cup"), "unsupported container shape"),
+        (lambda: coupling.add_geoms(["floor", "nope"]), "unknown geom 'nope'"),
+        (lambda: coupling.add_geoms("floor"), "list of geom names"),
+        (lambda: coupling.add_geoms([0], world=7), "world 7"),
+        (lambda: coupling.step(-2), "steps must be >= 0"),
+    ]  # fmt: skip
+    for call, match in bad:
+        with pytest.raises(InvalidParameterError, match=match):
+            call()
+        assert (len(coupling.bindings), dict(coupling.slots), len(coupling.solver.colliders)) == (
+            state
+        )
+    coupling.solver.fill(0, coupling.bindings[0].collider, 20.0)
+    coupling.step(3)
+    assert np.isfinite(coupling.solver.positions()).all()
+
+
+def test_shapes_refuse_bad_sizes_and_keep_lists_hashable() -> None:
+    with pytest.raises(InvalidParameterError, match="radius must be a number"):
+        cup("a", 0.04)
+    with pytest.raises(InvalidParameterError, match="segments must be an integer"):
+        bowl(0.05, 0.02, segments=2.5)
+    with pytest.raises(InvalidParameterError, match="closed must be True or False"):
+        BoxShell(0.1, 0.1, 0.1, 0.004, closed="no")
+    as_lists = RevolvedShell([[0.0, 0.002], [0.022, 0.002], [0.022, 0.044]], 0.004)
+    assert as_lists == cup(0.02, 0.04) and hash(as_lists) == hash(cup(0.02, 0.04))
+    s = PBFSolver(1)
+    assert s.fill(0, s.add_container(0, as_lists), 20.0) > 0
+
+
+def test_profile_values_and_names() -> None:
+    water = liquid_profile("water")
+    assert water.replace(density=np.float32(998.0)).density == pytest.approx(998.0)
+    with pytest.raises(InvalidParameterError, match="unknown liquid parameter 'foo'"):
+        water.replace(foo=1.0)
+    with pytest.raises(InvalidParameterError, match="density must be a number"):
+        water.replace(density=True)
+    with pytest.raises(InvalidParameterError, match="name must be a string"):
+        water.replace(name=None)
 
 
 def test_collider_input_errors() -> None:

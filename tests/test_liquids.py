@@ -111,6 +111,11 @@ def test_bad_values_name_the_parameter() -> None:
         ("[profile.x]\nbase='nope'\n", "profile.x.base"),
         ("[profile.x]\ndensity=-3.0\n", "profile.x"),
         ("[profile.x\n", "<file>"),
+        ("[profile.x]\naliases='xx'\n", "profile.x.aliases"),
+        ("[profile.x]\nname=5\n", "profile.x.name"),
+        ("[profile.x]\nbase=['y']\n[profile.y]\n", "profile.x.base"),
+        ("[profile.x]\nname='Same'\n[profile.y]\nname='same'\n", "profile.y"),
+        ("\xff", "<file>"),
     ],
 )
 def test_malformed_file_names_file_and_key(tmp_path, body: str, key: str) -> None:
@@ -118,7 +123,13 @@ def test_malformed_file_names_file_and_key(tmp_path, body: str, key: str) -> Non
         "[defaults]\n" + "\n".join(f"{k} = 1.0" for k in liquid_profile("water").to_flex()) + "\n"
     )
     path = tmp_path / "bad.toml"
-    path.write_text(good + body)
+    text = (good + body).encode("utf-8")
+    path.write_bytes(text.replace("\xff".encode(), b"\xff"))  # "\xff": a byte not UTF-8
     with pytest.raises(ProfileFileError) as err:
         load_liquids(path)
     assert str(path) in str(err.value) and key in str(err.value)
+
+
+def test_a_missing_liquids_file_is_named(tmp_path) -> None:
+    with pytest.raises(ProfileFileError, match=r"nope\.toml: key .<file>.: cannot read"):
+        load_liquids(tmp_path / "nope.toml")

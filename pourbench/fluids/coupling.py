@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from pourbench.errors import InvalidParameterError
+from pourbench.errors import InvalidParameterError, check_array, check_index, check_int
 from pourbench.fluids.meshes import convex_hull
 from pourbench.fluids.shapes import ContainerShape
-from pourbench.fluids.solver import PBFSolver
+from pourbench.fluids.solver import PBFSolver, shape_kind
 
 _GEOM_KIND = {
     mujoco.mjtGeom.mjGEOM_PLANE: "plane",
@@ -67,6 +67,14 @@ class MujocoCoupling:
     """
 
     def __init__(self, solver: PBFSolver, model: mujoco.MjModel, datas: Sequence[mujoco.MjData]):
+        if not isinstance(solver, PBFSolver):
+            raise InvalidParameterError(f"solver must be a PBFSolver, got {solver!r}")
+        if not isinstance(model, mujoco.MjModel):
+            raise InvalidParameterError(f"model must be a mujoco.MjModel, got {model!r}")
+        datas = list(datas)
+        bad = [d for d in datas if not isinstance(d, mujoco.MjData)]
+        if bad:
+            raise InvalidParameterError(f"datas must be mujoco.MjData, got {bad[0]!r}")
         if len(datas) != solver.num_worlds:
             raise InvalidParameterError(
                 f"need one MjData per world: {solver.num_worlds} worlds, {len(datas)} datas"
@@ -90,7 +98,7 @@ class MujocoCoupling:
                 names = [self.model.body(i).name for i in range(self.model.nbody)]
                 raise InvalidParameterError(f"unknown body {body!r}; bodies: {names}")
             return bid
-        return int(body)
+        return check_index("body", body, self.model.nbody)
 
     def _slot(self, world: int, body: int) -> int:
         if body == 0:  # the world body never moves and takes no wrench
@@ -101,7 +109,10 @@ class MujocoCoupling:
         return self.slots[key]
 
     def _worlds(self, world: int | None) -> range:
-        return range(self.solver.num_worlds) if world is None else range(world, world + 1)
+        if world is None:
+            return range(self.solver.num_worlds)
+        world = check_index("world", world, self.solver.num_worlds)
+        return range(world, world + 1)
 
     def add_geoms(self, geoms: Iterable[int | str] | None = None, world: int | None = None) -> None:
         """Turn MuJoCo geoms (all collidable ones by default) into colliders.
@@ -109,15 +120,28 @@ class MujocoCoupling:
         Supported: plane, sphere, capsule, cylinder, box, mesh. Other types raise.
         """
         m = self.model
+        worlds = self._worlds(world)
         if geoms is None:
             ids = [g for g in range(m.ngeom) if m.geom_contype[g] or m.geom_conaffinity[g]]
         else:
-            ids = [
-                mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) if isinstance(g, str) else g
-                for g in geoms
-            ]
-            if any(g < 0 for g in ids):
-                raise InvalidParameterError(f"unknown geom in {list(geoms)}")
+            if isinstance(geoms, str | int):
+                raise InvalidParameterError(
+                    f"geoms must be a list of geom names or ids, got {geoms!r}"
+                )
+            ids = []
+            for g in geoms:
+                gid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) if isinstance(g, str) else g
+                if isinstance(g, str) and gid < 0:
+                    names = [m.geom(i).name for i in range(m.ngeom) if m.geom(i).name]
+                    raise InvalidParameterError(f"unknown geom {g!r}; named geoms: {names}")
+                ids.append(check_index("geom", gid, m.ngeom))
+        for g in ids:  # every geom checked before any collider is added
+            gtype = int(m.geom_type[g])
+            if gtype not in _GEOM_KIND:
+                raise InvalidParameterError(
+                    f"geom {m.geom(g).name or g}: type {mujoco.mjtGeom(gtype).name} has no "
+                    f"fluid collider; supported: {sorted(_GEOM_KIND.values())}"
+                )
         for g in ids:
             gtype = int(m.geom_type[g])
             if gtype not in _GEOM_KIND:
@@ -125,7 +149,7 @@ class MujocoCoupling:
                     f"geom {m.geom(g).name or g}: type {mujoco.mjtGeom(gtype).name} has no "
                     f"fluid collider; supported: {sorted(_GEOM_KIND.values())}"
                 )
-            kind = _GEOM_KIND[gtype]
+            kind = _GEOM_KIND[int(m.geom_type[g])]
             size = m.geom_size[g]
             params = {
                 "plane": [0.0],
@@ -141,7 +165,7 @@ class MujocoCoupling:
                 va, vn = m.mesh_vertadr[mid], m.mesh_vertnum[mid]
                 mesh = convex_hull(m.mesh_vert[va : va + vn])
             body = int(m.geom_bodyid[g])
-            for w in self._worlds(world):
+            for w in worlds:
                 c = self.solver.add_collider(w, kind, params, body=self._slot(w, body), mesh=mesh)
                 self.bindings.append(
                     _Binding(c, w, body, m.geom_pos[g].copy(), m.geom_quat[g].copy())
@@ -161,13 +185,17 @@ class MujocoCoupling:
         Returns:
             The collider index in each world, in world order.
         """
+        shape_kind(shape)  # a container shape, checked before any state changes
         bid = self._body_id(body)
+        worlds = self._worlds(world)
+        pos = check_array("local_pos", local_pos, (3,))
+        quat = check_array("local_quat", local_quat, (4,))
+        if abs(np.linalg.norm(quat) - 1.0) > 1e-3:
+            raise InvalidParameterError(f"local_quat must be a unit quaternion, got {local_quat}")
         out = []
-        for w in self._worlds(world):
+        for w in worlds:
             c = self.solver.add_container(w, shape, body=self._slot(w, bid))
-            self.bindings.append(
-                _Binding(c, w, bid, np.asarray(local_pos, float), np.asarray(local_quat, float))
-            )
+            self.bindings.append(_Binding(c, w, bid, pos.copy(), quat.copy()))
             out.append(c)
         self.sync()
         return out
@@ -225,7 +253,7 @@ class MujocoCoupling:
 
     def step(self, n: int = 1) -> None:
         """Advance MuJoCo and the liquid together by ``n`` steps."""
-        for _ in range(int(n)):
+        for _ in range(check_int("steps", n, minimum=0)):
             for d in self.datas:
                 mujoco.mj_step(self.model, d)
                 mujoco.mj_kinematics(self.model, d)

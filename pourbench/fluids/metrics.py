@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pourbench.errors import InvalidParameterError, check_index
 from pourbench.fluids.solver import PBFSolver, inverse_transform_points
 
 
@@ -45,16 +46,31 @@ def liquid_metrics_all(
     """:func:`liquid_metrics` of each world ``w`` in ``containers`` (its container colliders
     ``containers[w]``, the same number for every world), in that order, from one read of the
     particles. The worlds' k-th containers that share a shape are tested in one pass."""
-    worlds = list(containers)
-    cups = [list(containers[w]) for w in worlds]
+    if not isinstance(containers, Mapping):
+        raise InvalidParameterError(
+            f"containers must map each world to its container colliders, got {containers!r}"
+        )
+    worlds = [check_index("world", w, solver.num_worlds) for w in containers]
+    cups = []
+    for w in worlds:
+        if isinstance(containers[w], str) or not isinstance(containers[w], Sequence):
+            raise InvalidParameterError(
+                f"world {w}'s containers must be a list of collider indices, got {containers[w]!r}"
+            )
+        cups.append([check_index("collider", c, len(solver.colliders)) for c in containers[w]])
     if len({len(c) for c in cups}) > 1:
-        raise ValueError("every world must list the same number of containers")
+        raise InvalidParameterError("every world must list the same number of containers")
     for w, cs in zip(worlds, cups, strict=True):
         for c in cs:
             col = solver.colliders[c]
             if col.shape is None or col.world != w:
-                raise ValueError(f"collider {c} is not a container of world {w}")
+                raise InvalidParameterError(f"collider {c} is not a container of world {w}")
     x_all = solver.positions() if positions is None else positions
+    if np.shape(x_all) != (solver.num_particles, 3):
+        raise InvalidParameterError(
+            f"positions must be ({solver.num_particles}, 3), every particle's, got "
+            f"{np.shape(x_all)}"
+        )
     slices = [solver.world_slice(w) for w in worlds]
     counts = np.array([s.stop - s.start for s in slices])
     x = np.concatenate([x_all[s] for s in slices]) if worlds else np.zeros((0, 3))

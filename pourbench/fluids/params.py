@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import tomllib
 from dataclasses import dataclass
 from functools import cache
@@ -78,12 +79,18 @@ class LiquidProfile:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             if f.name in ("name", "source"):
+                if not isinstance(getattr(self, f.name), str):
+                    raise InvalidParameterError(
+                        f"liquid {f.name} must be a string, got {getattr(self, f.name)!r}"
+                    )
                 continue
             v = getattr(self, f.name)
             if v is None and f.name in _OPTIONAL:
                 continue
             what = f"liquid {self.name!r}: {f.name}"
-            if not isinstance(v, int | float) or math.isnan(v) or math.isinf(v):
+            if isinstance(v, bool) or not isinstance(v, numbers.Real):
+                raise InvalidParameterError(f"{what} must be a number, got {v!r}")
+            if math.isnan(v) or math.isinf(v):
                 raise InvalidParameterError(f"{what} must be finite, got {v!r}")
             if v < 0 or (f.name == "density" and v == 0):
                 raise InvalidParameterError(f"{what} must be positive, got {v!r}")
@@ -91,6 +98,13 @@ class LiquidProfile:
     def replace(self, **changes: float) -> LiquidProfile:
         """Copy with some attributes (snake_case or FleX names) changed; values are validated."""
         mapped = {FLEX_NAMES.get(k, k): v for k, v in changes.items()}
+        known = {f.name for f in dataclasses.fields(self)}
+        unknown = sorted(set(mapped) - known)
+        if unknown:
+            raise InvalidParameterError(
+                f"unknown liquid parameter {unknown[0]!r}; known: {sorted(FLEX_NAMES)} or "
+                f"{sorted(known)}"
+            )
         return dataclasses.replace(self, **mapped)
 
     def to_flex(self) -> dict[str, float]:
@@ -116,10 +130,14 @@ def load_liquids(path: str | Path | None = None) -> dict[str, LiquidProfile]:
     """
     path = Path(path) if path is not None else default_liquids_path()
     try:
-        doc = tomllib.loads(path.read_text())
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise ProfileFileError(path, "<file>", f"invalid TOML: {exc}") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProfileFileError(path, "<file>", f"cannot read: {exc}") from exc
     defaults = doc.get("defaults", {})
+    if not isinstance(defaults, dict):
+        raise ProfileFileError(path, "defaults", "must be a table")
     raw = doc.get("profile")
     if not isinstance(raw, dict) or not raw:
         raise ProfileFileError(path, "profile", "no [profile.<name>] tables")
@@ -136,6 +154,8 @@ def load_liquids(path: str | Path | None = None) -> dict[str, LiquidProfile]:
         if not isinstance(entry, dict):
             raise ProfileFileError(path, f"profile.{key}", "must be a table")
         base = entry.get("base")
+        if base is not None and not isinstance(base, str):
+            raise ProfileFileError(path, f"profile.{key}.base", f"must be a name, got {base!r}")
         merged = dict(defaults) if base is None else dict(resolve(base, (*chain, key)))
         if base is not None:  # measurements belong to the base liquid, not to this one
             for k in _OPTIONAL | {"aliases"}:
@@ -160,12 +180,24 @@ def load_liquids(path: str | Path | None = None) -> dict[str, LiquidProfile]:
         missing = [flex for flex, attr in FLEX_NAMES.items() if attr not in kwargs]
         if missing:
             raise ProfileFileError(path, f"profile.{key}.{missing[0]}", "missing parameter")
-        name = str(fields.get("name", key))
+        name = fields.get("name", key)
+        aliases = fields.get("aliases", [])
+        if not isinstance(name, str):
+            raise ProfileFileError(path, f"profile.{key}.name", f"must be a string, got {name!r}")
+        if not isinstance(aliases, list) or not all(isinstance(a, str) for a in aliases):
+            raise ProfileFileError(
+                path, f"profile.{key}.aliases", f"must be a list of strings, got {aliases!r}"
+            )
         try:
             profile = LiquidProfile(name=name, source=str(fields.get("source", "")), **kwargs)
         except InvalidParameterError as exc:
             raise ProfileFileError(path, f"profile.{key}", str(exc)) from exc
-        for alias in (key, name, *fields.get("aliases", [])):
+        for alias in (key, name, *aliases):
+            other = out.get(_norm(alias))
+            if other is not None and other is not profile:
+                raise ProfileFileError(
+                    path, f"profile.{key}", f"{alias!r} already names liquid {other.name!r}"
+                )
             out[_norm(alias)] = profile
     return out
 

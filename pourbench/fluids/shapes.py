@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError
+from pourbench.errors import InvalidParameterError, check_finite, check_int
 
 SHAPE_REVOLVED = 0
 SHAPE_BOX_SHELL = 1
@@ -42,9 +42,17 @@ class RevolvedShell:
     wall: float
 
     def __post_init__(self) -> None:
-        pts = np.asarray(self.profile, dtype=float)
+        try:
+            pts = np.asarray(self.profile, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise InvalidParameterError(
+                f"profile must be (rho, z) numbers, got {self.profile!r}"
+            ) from exc
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
             raise InvalidParameterError(f"profile needs >= 3 (rho, z) points, got {self.profile!r}")
+        # stored as tuples, so shapes stay hashable and comparable whatever the caller passed
+        object.__setattr__(self, "profile", tuple((float(r), float(z)) for r, z in pts))
+        object.__setattr__(self, "wall", check_finite("wall", self.wall))
         if not np.all(np.isfinite(pts)) or np.any(pts[:, 0] < 0):
             raise InvalidParameterError(f"profile points must be finite with rho >= 0: {pts}")
         if pts[0, 0] != 0.0:
@@ -157,9 +165,15 @@ class BoxShell:
 
     def __post_init__(self) -> None:
         for name in ("half_x", "half_y", "depth", "wall"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
+            v = check_finite(f"BoxShell.{name}", getattr(self, name))
+            if v <= 0:
                 raise InvalidParameterError(f"BoxShell.{name} must be > 0, got {v!r}")
+            object.__setattr__(self, name, v)
+        if not isinstance(self.closed, bool | np.bool_):
+            raise InvalidParameterError(
+                f"BoxShell.closed must be True or False, got {self.closed!r}"
+            )
+        object.__setattr__(self, "closed", bool(self.closed))
 
     @property
     def rim_height(self) -> float:
@@ -214,14 +228,28 @@ def _box_sdf(p: np.ndarray, h: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.maximum(q, 0.0), axis=-1) + np.minimum(q.max(axis=-1), 0.0)
 
 
+def _sizes(**sizes: float) -> list[float]:
+    """The named sizes (m) as floats, each finite and > 0, or an error naming the size."""
+    out = []
+    for name, value in sizes.items():
+        v = check_finite(name, value)
+        if v <= 0:
+            raise InvalidParameterError(f"{name} must be > 0, got {value!r}")
+        out.append(v)
+    return out
+
+
 def cup(radius: float, depth: float, wall: float = 0.004) -> RevolvedShell:
     """Straight cylindrical cup: inner ``radius`` and inner ``depth`` (m)."""
+    radius, depth, wall = _sizes(radius=radius, depth=depth, wall=wall)
     r, h = radius + wall / 2, wall / 2
     return RevolvedShell(((0.0, h), (r, h), (r, wall + depth)), wall)
 
 
 def bowl(radius: float, depth: float, wall: float = 0.004, segments: int = 8) -> RevolvedShell:
     """Spherical-cap bowl: mouth inner ``radius`` and inner ``depth`` (m)."""
+    radius, depth, wall = _sizes(radius=radius, depth=depth, wall=wall)
+    segments = check_int("segments", segments, minimum=1)
     if not (0 < depth <= radius):
         raise InvalidParameterError(f"bowl depth must be in (0, radius], got {depth!r}")
     R = (radius**2 + depth**2) / (2 * depth)  # sphere through the mouth rim and the bottom
@@ -245,6 +273,8 @@ def bottle(
     wall: float = 0.003,
 ) -> RevolvedShell:
     """Bottle: cylindrical body, conical shoulder, cylindrical neck (inner dimensions, m)."""
+    sizes = _sizes(**locals())  # every argument is a size
+    radius, body_height, neck_radius, neck_height, shoulder_height, wall = sizes
     r, n, h = radius + wall / 2, neck_radius + wall / 2, wall / 2
     pts = (
         (0.0, h),

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import functools
 import math
-import numbers
+import operator
 import re
 import warnings
 from dataclasses import dataclass, field
@@ -40,7 +40,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from pourbench.errors import CapacityError, InvalidParameterError, check_finite
+from pourbench.errors import (
+    CapacityError,
+    InvalidParameterError,
+    check_array,
+    check_finite,
+    check_index,
+    check_int,
+    check_poses,
+)
 from pourbench.fluids import kernels as K
 from pourbench.fluids.meshes import check_closed_mesh
 from pourbench.fluids.params import LiquidProfile, liquid_profile
@@ -153,6 +161,12 @@ class SolverConfig:
     def __post_init__(self) -> None:
         for name in ("spacing", "dt", "smoothing", "max_speed", "calibration_dt", "rest_packing"):
             check_finite(name, getattr(self, name), minimum=1e-9)
+        if self.smoothing <= 1.0:
+            raise InvalidParameterError(
+                f"smoothing must be > 1 (h wider than a spacing), got {self.smoothing!r}"
+            )
+        if not 0.0 <= check_finite("scorr_dq", self.scorr_dq) < 1.0:
+            raise InvalidParameterError(f"scorr_dq must be in [0, 1) (of h), got {self.scorr_dq!r}")
         for name in (
             "relaxation",
             "scorr_k",
@@ -160,15 +174,14 @@ class SolverConfig:
             "scorr_dq",
             "viscosity_rate",
             "sleep_threshold",
+            "cohesion_accel",
+            "surface_tension_accel",
+            "adhesion_gain",
         ):
             check_finite(name, getattr(self, name), minimum=0.0)
         check_finite("sor", self.sor, minimum=1e-9)
         for name, minimum in (("iterations", 1), ("max_neighbours", 1), ("reorder_every", 0)):
-            value = getattr(self, name)
-            if not isinstance(value, numbers.Integral) or isinstance(value, bool):
-                raise InvalidParameterError(f"{name} must be an integer, got {value!r}")
-            if value < minimum:
-                raise InvalidParameterError(f"{name} must be >= {minimum}, got {value!r}")
+            check_int(name, getattr(self, name), minimum=minimum)
         if self.pair_lists not in ("auto", "half", "full"):
             raise InvalidParameterError(
                 f"pair_lists must be 'auto', 'half' or 'full', got {self.pair_lists!r}"
@@ -237,6 +250,43 @@ def shape_kind(shape: ContainerShape) -> tuple[int, np.ndarray]:
     if isinstance(shape, BoxShell):
         return KIND_NAMES["box_shell"], shape.kernel_params()
     raise InvalidParameterError(f"unsupported container shape {type(shape).__name__}")
+
+
+_SIZES = {  # primitive kinds: how many sizes they take
+    "plane": (0, 1),
+    "mesh": (0, 1),
+    "box": (3,),
+    "sphere": (1,),
+    "capsule": (2,),
+    "cylinder": (2,),
+}
+
+
+def _check_sizes(kind: str, params: np.ndarray) -> None:
+    """The sizes a primitive collider needs: box half-extents, sphere radius, capsule and
+    cylinder radius and half-length, all > 0 (a capsule's half-length may be 0); plane and
+    mesh take none (or one ignored value)."""
+    counts = _SIZES.get(kind)
+    if counts is None:  # container shells: the shape's own checks hold
+        return
+    if len(params) not in counts:
+        raise InvalidParameterError(
+            f"a {kind!r} collider takes {' or '.join(map(str, counts))} size(s), got "
+            f"{len(params)}: {params.tolist()}"
+        )
+    if kind in ("plane", "mesh"):
+        return
+    positive = params[:1] if kind == "capsule" else params
+    if np.any(positive <= 0) or np.any(params < 0):
+        raise InvalidParameterError(f"{kind!r} sizes must be > 0, got {params.tolist()}")
+
+
+def _as_rows(name: str, value: object) -> np.ndarray:
+    """Points as an (n, 3) float array; a single point (3,) is one row."""
+    arr = np.asarray(value, dtype=object)
+    if arr.ndim == 1 and len(arr) == 3:
+        value = [value]
+    return check_array(name, value, (None, 3))
 
 
 def _bound(c: Collider) -> float:
@@ -311,9 +361,9 @@ class PBFSolver:
     """
 
     def __init__(self, num_worlds: int = 1, config: SolverConfig | None = None) -> None:
-        if int(num_worlds) < 1:
-            raise InvalidParameterError(f"num_worlds must be >= 1, got {num_worlds!r}")
-        self.num_worlds = int(num_worlds)
+        self.num_worlds = check_int("num_worlds", num_worlds, minimum=1)
+        if config is not None and not isinstance(config, SolverConfig):
+            raise InvalidParameterError(f"config must be a SolverConfig, got {config!r}")
         self.config = config or SolverConfig()
         if self.config.device != "cpu":
             count = wp.get_cuda_device_count() if cuda_available() else 0
@@ -386,14 +436,25 @@ class PBFSolver:
                 wound outward (:func:`pourbench.fluids.meshes.check_closed_mesh`).
         """
         self._check_world(world)
-        if kind not in KIND_NAMES:
+        if not isinstance(kind, str) or kind not in KIND_NAMES:
             raise InvalidParameterError(
                 f"unknown collider kind {kind!r}; known: {list(KIND_NAMES)}"
             )
+        if kind in ("revolved", "box_shell") and not isinstance(shape, RevolvedShell | BoxShell):
+            raise InvalidParameterError(
+                f"a {kind!r} collider is a container shell: add it with add_container(world, shape)"
+            )
+        arr = check_array("collider params", np.ravel(np.asarray(params, dtype=object)), (None,))
+        _check_sizes(kind, arr)
+        if body != -1:
+            check_index("body slot", body, self.num_body_slots)
+        pose_arr = (
+            None if pose is None else check_poses("pose", [check_array("pose", pose, (7,))], 1)[0]
+        )
         wmesh = None
         if kind == "mesh":
-            if mesh is None:
-                raise InvalidParameterError("a mesh collider needs (vertices, triangles)")
+            if not isinstance(mesh, tuple | list) or len(mesh) != 2:
+                raise InvalidParameterError("a mesh collider needs mesh=(vertices, triangles)")
             verts, tris = mesh
             check_closed_mesh(verts, tris)
             wmesh = wp.Mesh(
@@ -403,12 +464,9 @@ class PBFSolver:
                 ),
                 support_winding_number=True,
             )
-        arr = np.asarray(params, np.float32).ravel()
-        if not np.all(np.isfinite(arr)):
-            raise InvalidParameterError(f"collider params must be finite, got {arr}")
-        c = Collider(world, KIND_NAMES[kind], arr, body, wmesh, shape=shape)
-        if pose is not None:
-            c.pose = np.asarray(pose, float).copy()
+        c = Collider(world, KIND_NAMES[kind], arr.astype(np.float32), int(body), wmesh, shape=shape)
+        if pose_arr is not None:
+            c.pose = pose_arr
         self.colliders.append(c)
         self._mark_dirty()
         return len(self.colliders) - 1
@@ -432,10 +490,10 @@ class PBFSolver:
     ) -> None:
         """Append particles (world-frame positions, m) to ``world``."""
         self._check_world(world)
-        pos = np.asarray(positions, np.float32).reshape(-1, 3)
-        if not np.all(np.isfinite(pos)):
-            raise InvalidParameterError("particle positions must be finite")
-        vel = np.zeros_like(pos) if velocities is None else np.asarray(velocities, np.float32)
+        pos = _as_rows("particle positions", positions).astype(np.float32)
+        vel = np.zeros_like(pos)
+        if velocities is not None:
+            vel = check_array("particle velocities", velocities, pos.shape).astype(np.float32)
         self._mark_dirty()
         # keep particles grouped by world so each world's slice is contiguous
         idx = np.searchsorted(self._world, world, side="right")
@@ -469,11 +527,16 @@ class PBFSolver:
             CapacityError: more liquid than the container holds below its rim.
         """
         mass_g = check_finite("mass_g", mass_g, minimum=0.0)
-        if liquid is not None:
-            self.set_liquid(world, liquid)
-        c = self.colliders[collider]
+        self._check_world(world)
+        c = self.colliders[check_index("collider", collider, len(self.colliders))]
         if c.shape is None:
             raise InvalidParameterError(f"collider {collider} is not a container shell")
+        if c.world != world:
+            raise InvalidParameterError(
+                f"collider {collider} is in world {c.world}, not in world {world}"
+            )
+        if liquid is not None:
+            self.set_liquid(world, liquid)
         rho = self.liquids[world].density
         m = rho * self.config.spacing**3
         n = round(mass_g * 1e-3 / m)
@@ -491,8 +554,7 @@ class PBFSolver:
     # ------------------------------------------------------------------------- device
 
     def _check_world(self, world: int) -> None:
-        if not 0 <= int(world) < self.num_worlds:
-            raise InvalidParameterError(f"world {world!r} not in [0, {self.num_worlds})")
+        check_index("world", world, self.num_worlds)
 
     def _mark_dirty(self) -> None:
         """Pull the device state into the host copy, then flag a re-upload before the next
@@ -672,18 +734,37 @@ class PBFSolver:
         poses of the swept collision. ``com`` (n, 3) is the point each collider's reaction
         torque is taken about (its body's CoM).
         """
-        poses = np.asarray(poses, float).reshape(len(indices), 7)
-        if not np.all(np.isfinite(poses)):
-            raise InvalidParameterError("collider poses must be finite")
-        for k, i in enumerate(indices):
-            self.colliders[i].pose = poses[k].copy()
-            if com is not None:
-                self.colliders[i].com = np.asarray(com[k], float).copy()
+        # checked before anything changes; a fast path, as the coupling calls this every step
+        try:
+            idx = [operator.index(i) for i in indices]
+        except TypeError:
+            raise InvalidParameterError(
+                f"indices must be a list of collider indices, got {indices!r}"
+            ) from None
+        if idx and (min(idx) < 0 or max(idx) >= len(self.colliders)):
+            bad = next(i for i in idx if not 0 <= i < len(self.colliders))
+            raise InvalidParameterError(f"collider {bad} not in [0, {len(self.colliders)})")
+        arr = np.asarray(poses, dtype=float)
+        ok = arr.shape == (len(idx), 7) and np.isfinite(arr.sum())
+        if ok and idx:
+            norm2 = np.einsum("ij,ij->i", arr[:, 3:], arr[:, 3:])  # unit within 1e-3: 1 ± 2e-3
+            ok = 1.0 - 2e-3 < norm2.min() and norm2.max() < 1.0 + 2e-3
+        if not ok:
+            arr = check_poses("collider poses", poses, len(idx))  # names what is wrong
+        coms = None
+        if com is not None:
+            coms = np.asarray(com, dtype=float)
+            if coms.shape != (len(idx), 3) or not np.isfinite(coms.sum()):
+                coms = check_array("com", com, (len(idx), 3))
+        for k, i in enumerate(idx):
+            self.colliders[i].pose = arr[k].copy()
+            if coms is not None:
+                self.colliders[i].com = coms[k].copy()
         self._poses_pending = True  # uploaded at the next step, so repeated calls are fine
 
     def set_container_shape(self, collider: int, shape: ContainerShape) -> None:
         """Replace a container collider's shell (e.g. a new pouring container on reset)."""
-        c = self.colliders[collider]
+        c = self.colliders[check_index("collider", collider, len(self.colliders))]
         if c.shape is None:
             raise InvalidParameterError(f"collider {collider} is not a container shell")
         c.kind, c.params = shape_kind(shape)
@@ -694,9 +775,10 @@ class PBFSolver:
 
     def step(self, n: int = 1) -> None:
         """Advance every world by ``n`` steps of ``config.dt``."""
+        n = check_int("steps", n, minimum=0)
         if self._dirty:
             self._upload()
-        for _ in range(int(n)):
+        for _ in range(n):
             self._step_once()
 
     def _launch(
@@ -1067,12 +1149,14 @@ class PBFSolver:
 
     def world_slice(self, world: int) -> slice:
         """Index range of ``world``'s particles in :meth:`positions`."""
+        self._check_world(world)
         lo = int(np.searchsorted(self._world, world, side="left"))
         hi = int(np.searchsorted(self._world, world, side="right"))
         return slice(lo, hi)
 
     def particle_mass(self, world: int) -> float:
         """Mass of one particle of ``world``, kg."""
+        self._check_world(world)
         return self.liquids[world].density * self.config.spacing**3
 
     def densities(self) -> np.ndarray:
@@ -1133,9 +1217,11 @@ class PBFSolver:
         Evaluated by the same Warp function the collision kernels use, at points given in
         the collider's local frame.
         """
-        c = self.colliders[collider]
+        c = self.colliders[check_index("collider", collider, len(self.colliders))]
         pts = wp.array(
-            np.asarray(local_points, np.float32).reshape(-1, 3), dtype=wp.vec3, device=self.device
+            _as_rows("local_points", local_points).astype(np.float32),
+            dtype=wp.vec3,
+            device=self.device,
         )
         out = wp.zeros(len(pts), dtype=wp.vec4, device=self.device)
         params = wp.array(c.params, dtype=float, device=self.device)
