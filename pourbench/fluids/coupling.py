@@ -143,12 +143,6 @@ class MujocoCoupling:
                     f"fluid collider; supported: {sorted(_GEOM_KIND.values())}"
                 )
         for g in ids:
-            gtype = int(m.geom_type[g])
-            if gtype not in _GEOM_KIND:
-                raise InvalidParameterError(
-                    f"geom {m.geom(g).name or g}: type {mujoco.mjtGeom(gtype).name} has no "
-                    f"fluid collider; supported: {sorted(_GEOM_KIND.values())}"
-                )
             kind = _GEOM_KIND[int(m.geom_type[g])]
             size = m.geom_size[g]
             params = {
