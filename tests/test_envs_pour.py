@@ -14,8 +14,11 @@ from gymnasium.error import ResetNeeded
 from gymnasium.utils.env_checker import check_env
 
 import pourbench  # noqa: F401  (registers the ids)
+from pourbench.envs.action_handler import ActionLimits
 from pourbench.envs.pour import PourEnv
+from pourbench.envs.reward import RewardConfig
 from pourbench.envs.vector import PourVectorEnv
+from pourbench.errors import InvalidParameterError
 from pourbench.fluids.solver import inverse_transform_points
 
 ABOVE = (-0.02, 0.0, 0.12)  # start just above the receiving tray: pours within ~20 steps
@@ -232,6 +235,38 @@ def test_bad_input() -> None:
         venv.step(np.array([[0.0, 0.0], [0.0, np.nan]]))
     with pytest.raises(ValueError, match=r"shape \(2, 2\)"):
         venv.step(np.zeros(2))
+
+
+def test_bad_settings_and_resets_are_refused_before_anything_changes() -> None:
+    with pytest.raises(InvalidParameterError, match=r"limits\.max_tilt must be > 0"):
+        PourEnv(limits=ActionLimits(max_tilt=-1.0))
+    with pytest.raises(InvalidParameterError, match=r"limits\.max_speed must be finite"):
+        ActionLimits(max_speed=float("nan"))
+    with pytest.raises(InvalidParameterError, match=r"reward\.window must be >= 1"):
+        RewardConfig(window=0)
+    with pytest.raises(InvalidParameterError, match="max_steps must be an integer"):
+        PourEnv(max_steps=True)
+    with pytest.raises(InvalidParameterError, match="num_envs must be an integer"):
+        PourVectorEnv(2.7)
+    env = PourEnv()
+    with pytest.raises(InvalidParameterError, match="lesson must be an integer"):
+        env.set_lesson(1.7)
+    venv = PourVectorEnv(2)
+    with pytest.raises(InvalidParameterError, match="world 1 unreset, and it was never reset"):
+        venv.reset(seed=0, options={"reset_mask": [True, False]})
+    venv.reset(seed=0)
+    steps = [w.steps for w in venv.batch.worlds]
+    for bad, match in [
+        ({"seed": [5, -1]}, "seed must be >= 0"),
+        ({"seed": [1.5, 2]}, "seed must be an integer"),
+        ({"seed": 3, "options": {"reset_mask": True}}, "reset_mask must be 2 booleans"),
+        ({"seed": 3, "options": {"reset_mask": [True]}}, "reset_mask must be 2 booleans"),
+    ]:
+        venv.step(np.zeros((2, 2)))
+        steps = [w.steps for w in venv.batch.worlds]
+        with pytest.raises(InvalidParameterError, match=match):
+            venv.reset(**bad)
+        assert [w.steps for w in venv.batch.worlds] == steps, "a refused reset reset a world"
 
 
 def test_stepping_outside_an_episode_is_refused_and_changes_nothing() -> None:

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pourbench.errors import InvalidParameterError, check_finite
+
 ACTION_MODES: tuple[str, ...] = ("thesis", "free")
 
 
@@ -35,6 +37,14 @@ class ActionLimits:
     max_rate: float = 0.8
     max_tilt: float = 2.4
     clearance_margin: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in ("max_speed", "max_rate", "max_tilt"):
+            if check_finite(f"limits.{name}", getattr(self, name)) <= 0:
+                raise InvalidParameterError(
+                    f"limits.{name} must be > 0, got {getattr(self, name)!r}"
+                )
+        check_finite("limits.clearance_margin", self.clearance_margin, minimum=0.0)
 
 
 def as_actions(actions: object, n: int | None = None) -> np.ndarray:

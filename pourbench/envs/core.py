@@ -28,7 +28,13 @@ from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, as_actions
 from pourbench.envs.curriculum import Lesson, load_curriculum
 from pourbench.envs.observation import GRAVITY, WeightFilter
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
-from pourbench.errors import CapacityError, InvalidParameterError, UnknownNameError, check_finite
+from pourbench.errors import (
+    CapacityError,
+    InvalidParameterError,
+    UnknownNameError,
+    check_finite,
+    check_index,
+)
 from pourbench.fluids import (
     LiquidProfile,
     MujocoCoupling,
@@ -115,7 +121,9 @@ class PourConfig:
                 raise InvalidParameterError(f"{name} must be > 0, got {getattr(self, name)!r}")
         for name in ("tolerance_g", "stream_stop_g", "settle_time", "sensor_noise_n"):
             check_finite(name, getattr(self, name), minimum=0.0)
-        if not isinstance(self.max_steps, int | np.integer) or self.max_steps < 1:
+        if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int | np.integer):
+            raise InvalidParameterError(f"max_steps must be an integer, got {self.max_steps!r}")
+        if self.max_steps < 1:
             raise InvalidParameterError(
                 f"max_steps must be an integer >= 1, got {self.max_steps!r}"
             )
@@ -243,9 +251,7 @@ class PourBatch:
 
     def set_lesson(self, k: int) -> None:
         """Use curriculum lesson ``k`` for liquids drawn at later resets."""
-        if not 0 <= int(k) < len(self.lessons):
-            raise ValueError(f"lesson {k!r} not in [0, {len(self.lessons)})")
-        self.lesson = int(k)
+        self.lesson = check_index("lesson", k, len(self.lessons))
 
     def _park_all(self, d: mujoco.MjData) -> None:
         for i, c in enumerate(self.candidates):

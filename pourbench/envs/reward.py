@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pourbench.errors import check_finite, check_int
+
 
 @dataclass(frozen=True)
 class RewardConfig:
@@ -28,6 +30,11 @@ class RewardConfig:
     success_g: float = 10.0
     average_success_g: float = 20.0
     window: int = 10
+
+    def __post_init__(self) -> None:
+        check_finite("reward.success_g", self.success_g, minimum=0.0)
+        check_finite("reward.average_success_g", self.average_success_g, minimum=0.0)
+        check_int("reward.window", self.window, minimum=1)
 
 
 def extrinsic_reward(

@@ -23,6 +23,7 @@ from gymnasium.vector.utils import batch_space
 from pourbench.envs.core import PourBatch
 from pourbench.envs.pour import RENDER_SIZE, action_space, make_config, observation_space
 from pourbench.envs.pour import render_world as _render_world
+from pourbench.errors import InvalidParameterError, check_int
 
 _MODES = {"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP}
 
@@ -56,7 +57,7 @@ class PourVectorEnv(VectorEnv):
             )
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        self.num_envs = int(num_envs)
+        self.num_envs = check_int("num_envs", num_envs, minimum=1)
         self.batch = PourBatch(self.num_envs, make_config(**kwargs))
         self.config = self.batch.config
         self.autoreset_mode = mode
@@ -82,17 +83,30 @@ class PourVectorEnv(VectorEnv):
         Other ``options`` (liquid, target_g, container, initial_g, start) apply to every
         world reset.
         """
-        super().reset(seed=seed if isinstance(seed, int) else None)
-        if seed is None:
-            seeds: list[int | None] = [None] * self.num_envs
-        elif isinstance(seed, int):
-            seeds = [seed + k for k in range(self.num_envs)]
+        # everything is checked before the first world is reset
+        if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
+            seeds: list[int | None] = [
+                check_int("seed", seed, minimum=0) + k for k in range(self.num_envs)
+            ]
+        elif seed is None:
+            seeds = [None] * self.num_envs
         else:
-            seeds = list(seed)
+            seeds = list(seed) if isinstance(seed, list | tuple | np.ndarray) else [seed]
             if len(seeds) != self.num_envs:
-                raise ValueError(f"{len(seeds)} seeds for {self.num_envs} worlds")
+                raise InvalidParameterError(f"{len(seeds)} seeds for {self.num_envs} worlds")
+            seeds = [None if s is None else check_int("seed", s, minimum=0) for s in seeds]
         opts = dict(options or {})
-        mask = np.asarray(opts.pop("reset_mask", np.ones(self.num_envs, bool)), bool)
+        mask = np.asarray(opts.pop("reset_mask", np.ones(self.num_envs, bool)))
+        if mask.shape != (self.num_envs,) or mask.dtype != bool:
+            raise InvalidParameterError(
+                f"reset_mask must be {self.num_envs} booleans, got {mask.tolist()!r}"
+            )
+        never = [k for k in range(self.num_envs) if not mask[k] and self.batch.worlds[k] is None]
+        if never:
+            raise InvalidParameterError(
+                f"reset_mask leaves world {never[0]} unreset, and it was never reset"
+            )
+        super().reset(seed=seeds[0] if isinstance(seed, int | np.integer) else None)
         for k in np.flatnonzero(mask):
             self.batch.reset_world(int(k), seeds[k], opts)
         self.batch.flush()
