@@ -52,6 +52,14 @@ def check_finite(name: str, value: float, *, minimum: float | None = None) -> fl
     return v
 
 
+def check_positive(name: str, value: float) -> float:
+    """Return ``value`` as float, raising :class:`InvalidParameterError` unless finite and > 0."""
+    v = check_finite(name, value)
+    if v <= 0:
+        raise InvalidParameterError(f"{name} must be > 0, got {value!r}")
+    return v
+
+
 def check_int(name: str, value: object, *, minimum: int | None = None) -> int:
     """Return ``value`` as int, raising :class:`InvalidParameterError` unless it is an integer
     (not a bool, not a float such as 2.5 or 2.0) at least ``minimum``."""
@@ -75,30 +83,38 @@ def check_index(name: str, value: object, size: int) -> int:
 
 def check_array(name: str, value: object, shape: tuple[int | None, ...]) -> np.ndarray:
     """Return ``value`` as a finite float64 array of ``shape`` (``None``: any length there),
-    raising :class:`InvalidParameterError` that names ``name`` and the shape it got."""
+    raising :class:`InvalidParameterError` that names ``name`` and the shape it got. Cheap on
+    good input (the coupling checks every step's poses): one sum tests finiteness."""
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as exc:
         raise InvalidParameterError(f"{name} must be numbers, got {value!r}") from exc
-    want = "(" + ", ".join("n" if s is None else str(s) for s in shape)
-    want += ",)" if len(shape) == 1 else ")"
     if arr.ndim != len(shape) or any(
         s is not None and a != s for a, s in zip(arr.shape, shape, strict=True)
     ):
+        want = ", ".join("n" if s is None else str(s) for s in shape)
+        want = f"({want},)" if len(shape) == 1 else f"({want})"
         raise InvalidParameterError(f"{name} must have shape {want}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    # a sum is finite when every entry is, unless finite entries overflow it: then look closer
+    if not np.isfinite(arr.sum()) and not np.isfinite(arr).all():
         raise InvalidParameterError(f"{name} must be finite")
     return arr
+
+
+_UNIT_NORM2 = ((1.0 - 1e-3) ** 2, (1.0 + 1e-3) ** 2)  # |q| within 1e-3 of 1, squared
 
 
 def check_poses(name: str, value: object, count: int) -> np.ndarray:
     """``count`` poses (x, y, z, qx, qy, qz, qw) as a (count, 7) array; each quaternion must be
     unit length within 1e-3 (it is used as given, not normalised)."""
     arr = check_array(name, value, (count, 7))
-    norms = np.linalg.norm(arr[:, 3:], axis=1)
-    bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
-    if bad.size:
+    if count == 0:
+        return arr
+    norm2 = np.einsum("ij,ij->i", arr[:, 3:], arr[:, 3:])
+    lo, hi = _UNIT_NORM2
+    if not (lo <= norm2.min() and norm2.max() <= hi):
+        row = int(np.flatnonzero((norm2 < lo) | (norm2 > hi))[0])
         raise InvalidParameterError(
-            f"{name}: the quaternion of row {int(bad[0])} has norm {norms[bad[0]]:.6g}, not 1"
+            f"{name}: the quaternion of row {row} has norm {np.sqrt(norm2[row]):.6g}, not 1"
         )
     return arr

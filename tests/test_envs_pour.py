@@ -255,7 +255,6 @@ def test_bad_settings_and_resets_are_refused_before_anything_changes() -> None:
     with pytest.raises(InvalidParameterError, match="world 1 unreset, and it was never reset"):
         venv.reset(seed=0, options={"reset_mask": [True, False]})
     venv.reset(seed=0)
-    steps = [w.steps for w in venv.batch.worlds]
     for bad, match in [
         ({"seed": [5, -1]}, "seed must be >= 0"),
         ({"seed": [1.5, 2]}, "seed must be an integer"),

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, check_finite
+from pourbench.errors import check_finite, check_positive
 
 ACTION_MODES: tuple[str, ...] = ("thesis", "free")
 
@@ -40,10 +40,7 @@ class ActionLimits:
 
     def __post_init__(self) -> None:
         for name in ("max_speed", "max_rate", "max_tilt"):
-            if check_finite(f"limits.{name}", getattr(self, name)) <= 0:
-                raise InvalidParameterError(
-                    f"limits.{name} must be > 0, got {getattr(self, name)!r}"
-                )
+            check_positive(f"limits.{name}", getattr(self, name))
         check_finite("limits.clearance_margin", self.clearance_margin, minimum=0.0)
 
 

@@ -34,6 +34,7 @@ from pourbench.errors import (
     UnknownNameError,
     check_finite,
     check_index,
+    check_positive,
 )
 from pourbench.fluids import (
     LiquidProfile,
@@ -117,8 +118,7 @@ class PourConfig:
     def __post_init__(self) -> None:
         positive = ("control_hz", "pour_tilt", "upright_tilt", "sensor_rate_hz", "sensor_cutoff_hz")
         for name in positive:
-            if check_finite(name, getattr(self, name)) <= 0:
-                raise InvalidParameterError(f"{name} must be > 0, got {getattr(self, name)!r}")
+            check_positive(name, getattr(self, name))
         for name in ("tolerance_g", "stream_stop_g", "settle_time", "sensor_noise_n"):
             check_finite(name, getattr(self, name), minimum=0.0)
         if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int | np.integer):

@@ -84,17 +84,16 @@ class PourVectorEnv(VectorEnv):
         world reset.
         """
         # everything is checked before the first world is reset
-        if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
-            seeds: list[int | None] = [
-                check_int("seed", seed, minimum=0) + k for k in range(self.num_envs)
-            ]
-        elif seed is None:
-            seeds = [None] * self.num_envs
+        first: int | None = None
+        if seed is None:
+            seeds: list[int | None] = [None] * self.num_envs
+        elif isinstance(seed, list | tuple | np.ndarray):
+            if len(seed) != self.num_envs:
+                raise InvalidParameterError(f"{len(seed)} seeds for {self.num_envs} worlds")
+            seeds = [None if s is None else check_int("seed", s, minimum=0) for s in seed]
         else:
-            seeds = list(seed) if isinstance(seed, list | tuple | np.ndarray) else [seed]
-            if len(seeds) != self.num_envs:
-                raise InvalidParameterError(f"{len(seeds)} seeds for {self.num_envs} worlds")
-            seeds = [None if s is None else check_int("seed", s, minimum=0) for s in seeds]
+            first = check_int("seed", seed, minimum=0)
+            seeds = [first + k for k in range(self.num_envs)]
         opts = dict(options or {})
         mask = np.asarray(opts.pop("reset_mask", np.ones(self.num_envs, bool)))
         if mask.shape != (self.num_envs,) or mask.dtype != bool:
@@ -106,7 +105,7 @@ class PourVectorEnv(VectorEnv):
             raise InvalidParameterError(
                 f"reset_mask leaves world {never[0]} unreset, and it was never reset"
             )
-        super().reset(seed=seeds[0] if isinstance(seed, int | np.integer) else None)
+        super().reset(seed=first)
         for k in np.flatnonzero(mask):
             self.batch.reset_world(int(k), seeds[k], opts)
         self.batch.flush()

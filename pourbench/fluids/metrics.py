@@ -58,13 +58,12 @@ def liquid_metrics_all(
                 f"world {w}'s containers must be a list of collider indices, got {containers[w]!r}"
             )
         cups.append([check_index("collider", c, len(solver.colliders)) for c in containers[w]])
-    if len({len(c) for c in cups}) > 1:
-        raise InvalidParameterError("every world must list the same number of containers")
-    for w, cs in zip(worlds, cups, strict=True):
-        for c in cs:
+        for c in cups[-1]:
             col = solver.colliders[c]
             if col.shape is None or col.world != w:
                 raise InvalidParameterError(f"collider {c} is not a container of world {w}")
+    if len({len(c) for c in cups}) > 1:
+        raise InvalidParameterError("every world must list the same number of containers")
     x_all = solver.positions() if positions is None else positions
     if np.shape(x_all) != (solver.num_particles, 3):
         raise InvalidParameterError(

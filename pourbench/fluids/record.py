@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from pourbench.errors import InvalidParameterError, check_finite, check_index
+from pourbench.errors import check_index, check_positive
 from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell
 from pourbench.fluids.solver import PBFSolver, transform_points
 from pourbench.outputs import AtomicOutput, check_output_path
@@ -37,9 +37,7 @@ def container_wireframe(shape: ContainerShape, segments: int = 24) -> list[np.nd
 
 def speed_colors(v: np.ndarray, vmax: float = 1.0) -> np.ndarray:
     """Blue (still) to white (``vmax`` m/s and above, or not finite), uint8 RGB."""
-    vmax = check_finite("vmax", vmax)
-    if vmax <= 0:
-        raise InvalidParameterError(f"vmax must be > 0, got {vmax!r}")
+    vmax = check_positive("vmax", vmax)
     s = np.clip(np.nan_to_num(np.linalg.norm(v, axis=1) / vmax, nan=1.0), 0.0, 1.0)[:, None]
     slow, fast = np.array([30, 90, 200]), np.array([235, 245, 255])
     return (slow + s * (fast - slow)).astype(np.uint8)

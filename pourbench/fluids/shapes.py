@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, check_finite, check_int
+from pourbench.errors import InvalidParameterError, check_int, check_positive
 
 SHAPE_REVOLVED = 0
 SHAPE_BOX_SHELL = 1
@@ -52,15 +52,13 @@ class RevolvedShell:
             raise InvalidParameterError(f"profile needs >= 3 (rho, z) points, got {self.profile!r}")
         # stored as tuples, so shapes stay hashable and comparable whatever the caller passed
         object.__setattr__(self, "profile", tuple((float(r), float(z)) for r, z in pts))
-        object.__setattr__(self, "wall", check_finite("wall", self.wall))
+        object.__setattr__(self, "wall", check_positive("wall", self.wall))
         if not np.all(np.isfinite(pts)) or np.any(pts[:, 0] < 0):
             raise InvalidParameterError(f"profile points must be finite with rho >= 0: {pts}")
         if pts[0, 0] != 0.0:
             raise InvalidParameterError("profile must start on the axis (rho = 0)")
         if np.any(np.diff(pts[1:, 1]) <= 0):
             raise InvalidParameterError("side-wall z must strictly increase after the bottom")
-        if not (math.isfinite(self.wall) and self.wall > 0):
-            raise InvalidParameterError(f"wall thickness must be > 0, got {self.wall!r}")
         if np.any(pts[1:, 0] <= self.wall / 2):
             raise InvalidParameterError("side wall closer to the axis than half its thickness")
 
@@ -165,10 +163,7 @@ class BoxShell:
 
     def __post_init__(self) -> None:
         for name in ("half_x", "half_y", "depth", "wall"):
-            v = check_finite(f"BoxShell.{name}", getattr(self, name))
-            if v <= 0:
-                raise InvalidParameterError(f"BoxShell.{name} must be > 0, got {v!r}")
-            object.__setattr__(self, name, v)
+            object.__setattr__(self, name, check_positive(f"BoxShell.{name}", getattr(self, name)))
         if not isinstance(self.closed, bool | np.bool_):
             raise InvalidParameterError(
                 f"BoxShell.closed must be True or False, got {self.closed!r}"
@@ -230,13 +225,7 @@ def _box_sdf(p: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 def _sizes(**sizes: float) -> list[float]:
     """The named sizes (m) as floats, each finite and > 0, or an error naming the size."""
-    out = []
-    for name, value in sizes.items():
-        v = check_finite(name, value)
-        if v <= 0:
-            raise InvalidParameterError(f"{name} must be > 0, got {value!r}")
-        out.append(v)
-    return out
+    return [check_positive(name, value) for name, value in sizes.items()]
 
 
 def cup(radius: float, depth: float, wall: float = 0.004) -> RevolvedShell:

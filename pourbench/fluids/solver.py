@@ -734,7 +734,7 @@ class PBFSolver:
         poses of the swept collision. ``com`` (n, 3) is the point each collider's reaction
         torque is taken about (its body's CoM).
         """
-        # checked before anything changes; a fast path, as the coupling calls this every step
+        # checked before anything changes (cheaply: the coupling calls this every step)
         try:
             idx = [operator.index(i) for i in indices]
         except TypeError:
@@ -744,18 +744,8 @@ class PBFSolver:
         if idx and (min(idx) < 0 or max(idx) >= len(self.colliders)):
             bad = next(i for i in idx if not 0 <= i < len(self.colliders))
             raise InvalidParameterError(f"collider {bad} not in [0, {len(self.colliders)})")
-        arr = np.asarray(poses, dtype=float)
-        ok = arr.shape == (len(idx), 7) and np.isfinite(arr.sum())
-        if ok and idx:
-            norm2 = np.einsum("ij,ij->i", arr[:, 3:], arr[:, 3:])  # unit within 1e-3: 1 ± 2e-3
-            ok = 1.0 - 2e-3 < norm2.min() and norm2.max() < 1.0 + 2e-3
-        if not ok:
-            arr = check_poses("collider poses", poses, len(idx))  # names what is wrong
-        coms = None
-        if com is not None:
-            coms = np.asarray(com, dtype=float)
-            if coms.shape != (len(idx), 3) or not np.isfinite(coms.sum()):
-                coms = check_array("com", com, (len(idx), 3))
+        arr = check_poses("collider poses", poses, len(idx))
+        coms = None if com is None else check_array("com", com, (len(idx), 3))
         for k, i in enumerate(idx):
             self.colliders[i].pose = arr[k].copy()
             if coms is not None:
