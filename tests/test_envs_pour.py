@@ -266,6 +266,18 @@ def test_bad_settings_and_resets_are_refused_before_anything_changes() -> None:
         with pytest.raises(InvalidParameterError, match=match):
             venv.reset(**bad)
         assert [w.steps for w in venv.batch.worlds] == steps, "a refused reset reset a world"
+    steps = [w.steps for w in venv.batch.worlds]
+    with pytest.raises(ValueError, match=r"actions must have shape \(2, 2\)"):
+        venv.step(np.zeros(4))  # which two numbers are world 1's would be a guess
+    assert [w.steps for w in venv.batch.worlds] == steps, "a refused step stepped a world"
+    with pytest.raises(InvalidParameterError, match="control_hz must be >= 1 Hz"):
+        PourEnv(control_hz=0.01)  # 12,000 solver steps an env step
+    with pytest.raises(InvalidParameterError, match="reset options must be a dict"):
+        env.reset(options=[("liquid", "water")])
+    with pytest.raises(InvalidParameterError, match="target_g must be a number"):
+        env.reset(options={"target_g": "lots", "initial_g": 150.0})
+    env.reset(seed=0, options={"start": ABOVE})  # the refusals left it usable
+    assert env.step(np.zeros(2))[0].shape == (12,)
 
 
 def test_stepping_outside_an_episode_is_refused_and_changes_nothing() -> None:

@@ -193,6 +193,11 @@ def test_default_curriculum() -> None:
             for key, (lo, hi) in lesson.ranges.items():
                 assert lo <= getattr(liq, key) <= hi
     assert [lesson_at(p, lessons) for p in (0.0, 0.3, 0.6, 1.0)] == [0, 1, 2, 2]
+    # a last rollout past its budget stays in the last lesson; NaN used to give it too
+    assert lesson_at(1.02, lessons) == 2
+    for bad in (float("nan"), -0.1, "half"):
+        with pytest.raises(ValueError, match="progress must be"):
+            lesson_at(bad, lessons)
 
 
 GOOD_RANGES = {
@@ -233,3 +238,14 @@ def test_bad_curriculum_file_names_the_file_lesson_and_key(tmp_path, change, wor
         "[[lesson]]\nfraction = 1.0\n" + "".join(f"{k} = {v}\n" for k, v in GOOD_RANGES.items())
     )
     assert load_curriculum(good)[0].ranges["density"] == (900.0, 1100.0)
+
+
+def test_a_missing_or_unreadable_curriculum_file_is_named(tmp_path) -> None:
+    for path in (tmp_path / "absent.toml", tmp_path):
+        with pytest.raises(ValueError, match="cannot read the curriculum file") as exc:
+            load_curriculum(path)
+        assert str(path) in str(exc.value)
+    latin = tmp_path / "latin1.toml"
+    latin.write_bytes(b"# caf\xe9\n[[lesson]]\n")
+    with pytest.raises(ValueError, match=str(latin)):
+        load_curriculum(latin)

@@ -56,7 +56,10 @@ def as_actions(actions: object, n: int | None = None) -> np.ndarray:
     except (TypeError, ValueError) as exc:
         raise ValueError(f"actions must be numbers, got {actions!r}") from exc
     rows = a.size // 2 if n is None else n
-    if a.size != 2 * rows or a.size == 0 or (a.ndim > 1 and a.shape[-1] != 2):
+    # n worlds' actions come as (n, 2); a flat (2 n,) vector is refused for n > 1, since
+    # which numbers belong to which world would be a guess
+    flat_batch = n is not None and n > 1 and a.ndim < 2
+    if a.size != 2 * rows or a.size == 0 or (a.ndim > 1 and a.shape[-1] != 2) or flat_batch:
         want = "(2,) or (n, 2)" if n is None else ("(2,)" if n == 1 else f"({n}, 2)")
         raise ValueError(
             f"actions must have shape {want}: (tilt rate, approach rate) a world; "

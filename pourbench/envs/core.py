@@ -17,6 +17,7 @@ control steps.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import mujoco
@@ -64,7 +65,8 @@ class PourConfig:
     """Task settings (SI units; grams where the name ends in ``_g``).
 
     Attributes:
-        control_hz: policy (environment step) rate, Hz.
+        control_hz: policy (environment step) rate, Hz; at least 1 (the thesis' policy runs at
+            10 Hz; below that one step would hold most of a pour).
         max_steps: step limit of an episode (Algorithm 5's Max.Number.of.Steps).
         action_mode: "thesis" (Algorithm 4) or "free".
         limits: action scaling and tilt bound.
@@ -119,6 +121,11 @@ class PourConfig:
         positive = ("control_hz", "pour_tilt", "upright_tilt", "sensor_rate_hz", "sensor_cutoff_hz")
         for name in positive:
             check_positive(name, getattr(self, name))
+        if self.control_hz < 1.0:
+            raise InvalidParameterError(
+                f"control_hz must be >= 1 Hz (an environment step of at most 1 s of "
+                f"simulation), got {self.control_hz!r}"
+            )
         for name in ("tolerance_g", "stream_stop_g", "settle_time", "sensor_noise_n"):
             check_finite(name, getattr(self, name), minimum=0.0)
         if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int | np.integer):
@@ -298,6 +305,10 @@ class PourBatch:
         cfg = self.config
         old = self.worlds[world]
         rng = np.random.default_rng(seed) if (seed is not None or old is None) else old.rng
+        if options is not None and not isinstance(options, Mapping):
+            raise InvalidParameterError(
+                f"reset options must be a dict such as {{'liquid': 'water'}}, got {options!r}"
+            )
         opts = dict(options or {})
         unknown = set(opts) - {"liquid", "target_g", "container", "initial_g", "start"}
         if unknown:
@@ -339,9 +350,9 @@ class PourBatch:
             raise UnknownNameError("pouring container", name, self.candidates)
         # amounts
         target = opts.get("target_g")
-        target = float(rng.uniform(*cfg.target_range_g)) if target is None else float(target)
-        if not math.isfinite(target) or target <= 0:
-            raise ValueError(f"target_g must be a positive number of grams, got {target!r}")
+        if target is None:
+            target = float(rng.uniform(*cfg.target_range_g))
+        target = check_positive("target_g", target)
         particle_g = liquid.density * self.solver_config.spacing**3 * 1e3
         if target < particle_g:
             raise ValueError(

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pourbench.errors import check_finite
 from pourbench.fluids import LiquidProfile, liquid_profile
 
 DEFAULT_CURRICULUM = Path(str(resources.files("pourbench") / "assets" / "curriculum.toml"))
@@ -58,6 +59,8 @@ def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
             data = tomllib.load(f)
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not a valid TOML file: {exc}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: cannot read the curriculum file: {exc}") from None
     lessons = []
     for i, entry in enumerate(data.get("lesson", [])):
         ranges = {}
@@ -92,10 +95,16 @@ def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
 
 
 def lesson_at(progress: float, lessons: tuple[Lesson, ...]) -> int:
-    """Index of the lesson for a training progress in [0, 1] (fractions taken in order)."""
+    """Index of the lesson for a training progress in [0, 1] (fractions taken in order;
+    progress past 1, as a last rollout may overshoot its budget, gives the last lesson).
+
+    Raises:
+        ValueError: ``progress`` is NaN, infinite or negative.
+    """
+    p = check_finite("progress", progress, minimum=0.0)
     edge = 0.0
     for k, lesson in enumerate(lessons):
         edge += lesson.fraction
-        if progress < edge:
+        if p < edge:
             return k
     return len(lessons) - 1
