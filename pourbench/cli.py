@@ -80,6 +80,12 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_train(args: argparse.Namespace) -> int:
+    from pourbench.agents.train import run
+
+    return run(args)
+
+
 def _cmd_liquids(args: argparse.Namespace) -> int:
     from pourbench.fluids import liquid_names, liquid_profile
 
@@ -179,6 +185,16 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--seed", type=nonnegative_int, default=0, help="first episode's seed")
     ev.add_argument("--containers", default="training", choices=("training", "novel"))
     ev.set_defaults(func=_cmd_eval)
+
+    tr = sub.add_parser(
+        "train",
+        help="train PPO (MLP) on Pour-v0 for a wall-clock budget; compare it with a random policy",
+        **defaults,
+    )
+    from pourbench.agents.train import add_arguments as train_arguments
+
+    train_arguments(tr)
+    tr.set_defaults(func=_cmd_train)
 
     liquids = sub.add_parser("liquids", help="list the shipped liquid profiles")
     liquids.set_defaults(func=_cmd_liquids)

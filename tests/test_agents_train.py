@@ -3,6 +3,7 @@ checkpoints and resumes (step counter carried on)."""
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import pytest
@@ -27,6 +28,25 @@ TINY = ["--budget-s", "2", "--num-envs", "1", "--n-steps", "16", "--eval-episode
 def test_bad_input_is_one_clear_line(tmp_path, capsys, argv, words) -> None:
     assert main([*argv, "--out", str(tmp_path / "run")]) == 2
     assert words in capsys.readouterr().err
+
+
+def test_pourbench_train_takes_the_same_flags(tmp_path, capsys) -> None:
+    from dataclasses import fields
+
+    from pourbench.agents.train import TrainArgs
+    from pourbench.cli import build_parser
+    from pourbench.cli import main as cli_main
+
+    assert cli_main(["train", "--num-envs", "0", "--out", str(tmp_path / "run")]) == 2
+    assert "num_envs must be >= 1" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+    parser = build_parser()
+    args = parser.parse_args(["train", "--budget-s", "30", "--resume"])
+    assert (args.budget_s, args.resume, args.num_envs) == (30.0, True, TrainArgs().num_envs)
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    helps = {a.dest: a.help for a in sub.choices["train"]._actions}
+    for f in fields(TrainArgs):  # every setting has its line of help
+        assert helps[f.name] and "default" not in helps[f.name], f.name
 
 
 def test_an_output_path_that_is_a_file_is_refused(tmp_path, capsys) -> None:

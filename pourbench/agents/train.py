@@ -1,7 +1,8 @@
 """Train PPO (SB3, MLP policy) on ``pourbench/Pour-v0`` for a wall-clock budget, then compare
 it with a random policy on the same evaluation episodes.
 
-``python -m pourbench.agents.train --budget-s 900 --liquid water --target-g 100``
+``pourbench train --budget-s 900 --liquid water --target-g 100`` (or
+``python -m pourbench.agents.train …``, the same flags)
 
 The model is saved to ``<out>/model.zip`` every ``--checkpoint-s`` seconds and at the end
 (through a temporary file, so an interrupted run keeps its last checkpoint); ``--resume``
@@ -153,21 +154,47 @@ def train(args: TrainArgs) -> dict:
     return result
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """One ``--flag`` per :class:`TrainArgs` field (``pourbench train`` and ``main`` share it)."""
+    helps = _field_help()
     for name, value in asdict(TrainArgs()).items():
         flag = f"--{name.replace('_', '-')}"
         if isinstance(value, bool):
-            parser.add_argument(flag, action="store_true")
+            parser.add_argument(flag, action="store_true", help=helps[name])
         else:
-            parser.add_argument(flag, type=type(value), default=value)
+            parser.add_argument(flag, type=type(value), default=value, help=helps[name])
+
+
+def _field_help() -> dict[str, str]:
+    """Each field's line of :class:`TrainArgs`' ``Attributes:`` section."""
+    doc = (TrainArgs.__doc__ or "").split("Attributes:", 1)[-1]
+    helps: dict[str, str] = {}
+    for line in doc.splitlines():
+        name, sep, text = line.strip().partition(": ")
+        if sep and name in TrainArgs.__dataclass_fields__:
+            helps[name] = text.replace("``", "")
+        elif helps and line.strip():  # a wrapped description goes on
+            last = next(reversed(helps))
+            helps[last] += " " + line.strip()
+    return {k: v.rstrip(".") for k, v in helps.items()}
+
+
+def run(args: argparse.Namespace) -> int:
+    """Train with the parsed flags and print the result JSON (``ValueError`` on bad input)."""
+    fields = TrainArgs.__dataclass_fields__
+    result = train(TrainArgs(**{k: v for k, v in vars(args).items() if k in fields}))
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_arguments(parser)
     try:
-        result = train(TrainArgs(**vars(parser.parse_args(argv))))
+        return run(parser.parse_args(argv))
     except ValueError as exc:  # bad input: one clear line, no traceback
         print(f"pourbench.agents.train: error: {exc}", file=sys.stderr)
         return 2
-    print(json.dumps(result, indent=2))
-    return 0
 
 
 if __name__ == "__main__":
