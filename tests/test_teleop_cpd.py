@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pourbench.errors import InvalidParameterError
 from pourbench.teleop import (
     gauss_transform,
     register_affine,
@@ -129,3 +130,42 @@ def test_malformed_input_raises_value_error(fn) -> None:
         fn(Y, bad)
     with pytest.raises(ValueError, match="w"):
         fn(Y, Y, w=1.0)
+
+
+_PTS = np.array([[0.0, 0.0], [1.0, 0.2], [0.3, 1.0], [0.8, 0.9], [0.1, 0.5]])
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda: register_rigid(_PTS, np.ones((5, 2))), "Y is degenerate"),
+        (lambda: register_rigid(np.zeros((1, 2)), np.zeros((1, 2))), "X is degenerate"),
+        (lambda: register_affine(np.ones((5, 2)), np.ones((5, 2))), "X is degenerate"),
+        (lambda: register_nonrigid(np.ones((5, 2)), np.ones((5, 2))), "X is degenerate"),
+        (lambda: register_affine(_PTS, _PTS[:1]), "Y must span all 2 dimensions"),
+        (lambda: register_affine(_PTS, np.c_[np.arange(5.0), np.zeros(5)]), "rank 1"),
+        (lambda: register_rigid(_PTS, _PTS, max_iter=2.5), "max_iter must be an integer"),
+        (lambda: register_rigid(_PTS, _PTS, tol=np.nan), "tol must be finite"),
+        (lambda: register_rigid(np.zeros((5, 0)), np.zeros((3, 0))), "X has no dimensions"),
+        (lambda: register_nonrigid(_PTS, _PTS, lowrank=True, max_rank=0), "max_rank"),
+        (lambda: register_nonrigid(_PTS, _PTS, sigma2=0.0), "sigma2 must be > 0"),
+        (lambda: register_nonrigid(_PTS, _PTS, lowrank=True, rank_tol=2), "rank_tol"),
+        (lambda: register_nonrigid(_PTS, _PTS, lowrank=True, rank_tol=np.nan), "rank_tol"),
+        (lambda: register_nonrigid(_PTS, _PTS, fgt=True, fgt_eps=0), "fgt_eps"),
+        (lambda: register_nonrigid(_PTS, _PTS, fgt=True, fgt_eps=np.nan), "fgt_eps"),
+        (lambda: gauss_transform(_PTS, _PTS, np.ones((5, 1)), 0.0), "h must be > 0"),
+        (lambda: gauss_transform(_PTS, _PTS, np.ones((5, 1)), -1.0), "h must be > 0"),
+        (lambda: gauss_transform(_PTS, _PTS, np.ones((5, 1)), 1.0, eps=2), "eps"),
+        (lambda: gauss_transform(_PTS, _PTS, np.ones(5), 1.0), "weights must have shape"),
+        (lambda: gauss_transform(_PTS * np.nan, _PTS, np.ones((5, 1)), 1.0), "sources"),
+        (lambda: gauss_transform(_PTS, _PTS, np.ones((5, 1)), 1.0, max_order=2.5), "max_order"),
+    ],
+)
+def test_bad_parameters_and_degenerate_sets_are_refused_clearly(call, match) -> None:
+    with pytest.raises(InvalidParameterError, match=match):
+        call()
+
+
+def test_nonrigid_still_accepts_a_single_template_point() -> None:
+    res = register_nonrigid(_PTS, _PTS[:1])
+    assert np.all(np.isfinite(res.points))

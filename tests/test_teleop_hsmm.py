@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pourbench.errors import InvalidParameterError
 from pourbench.teleop import (
     HSMM,
     LETTERS,
@@ -85,3 +86,62 @@ def test_bad_input_raises_value_error() -> None:
         model.partial(np.zeros((0, 4)))
     with pytest.raises(ValueError, match="trajectory"):
         trajectory_features(np.zeros((1, 2)))
+
+
+_RNG = np.random.default_rng(0)
+_SEQS = [np.cumsum(_RNG.normal(size=(40, 4)), axis=0) * 0.01 for _ in range(3)]
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda: HSMM(2.5), "n_states must be an integer"),
+        (lambda: HSMM(True), "n_states must be an integer"),
+        (lambda: HSMM(3, reg=np.nan), "reg must be"),
+        (lambda: HSMM(3, reg=-1.0), "reg must be"),
+        (lambda: HSMM(3, reg=0.0), "reg must be"),
+        (lambda: HSMM(3, reg=np.ones(3)).fit(_SEQS), "reg has 3 entries"),
+        (lambda: HSMM(3, min_duration_std=0), "min_duration_std must be > 0"),
+        (lambda: HSMM(3, min_duration_std=np.nan), "min_duration_std must be finite"),
+        (lambda: HSMM(5).fit([_RNG.random((5, 4))]), "too short for n_states=5"),
+        (lambda: HSMM(3).fit(_SEQS, n_iter=2.5), "n_iter must be an integer"),
+        (lambda: HSMM(3).fit(_SEQS, tol=np.nan), "tol must be finite"),
+        (lambda: HSMM(2).fit([np.zeros((10, 0))]), "F >= 1"),
+        (lambda: HSMM(3).fit(_SEQS).state_sequence(2.5), "n_steps must be an integer"),
+    ],
+)
+def test_bad_settings_are_refused_up_front(call, match) -> None:
+    with pytest.raises(InvalidParameterError, match=match):
+        call()
+
+
+def test_short_sequences_that_pass_give_finite_results() -> None:
+    # one sequence of 2 x n_states samples is the shortest accepted; one demonstration
+    # gives zero duration spread, floored by min_duration_std > 0
+    p = HSMM(5).fit([_RNG.random((10, 4))]).partial(_RNG.random((3, 4)))
+    assert np.isfinite(p.loglik) and np.isfinite(p.fraction)
+    p = HSMM(3).fit(_SEQS[:1]).partial(_SEQS[0][:10])
+    assert np.isfinite(p.loglik)
+
+
+def test_failed_refit_leaves_the_model_unchanged(monkeypatch) -> None:
+    model = HSMM(3).fit(_SEQS)
+    before = model.partial(_SEQS[0][:10])
+    mu = model.mu.copy()
+    with pytest.raises(InvalidParameterError, match="too short"):
+        model.fit([_RNG.random((3, 4))])
+    model.reg = 0.0  # set after construction: refused by fit, nothing changed
+    with pytest.raises(InvalidParameterError, match="reg"):
+        model.fit([np.zeros((20, 4))])
+    model.reg = 1e-6
+
+    # an error in the middle of EM (after the first parameters were overwritten)
+    def boom(*args, **kwargs):
+        raise np.linalg.LinAlgError("Singular matrix")
+
+    monkeypatch.setattr(model, "_forward_backward", boom)
+    with pytest.raises(InvalidParameterError, match="singular"):
+        model.fit([np.zeros((20, 4)) + _RNG.random((20, 4))])
+    monkeypatch.undo()
+    np.testing.assert_array_equal(model.mu, mu)
+    assert model.partial(_SEQS[0][:10]) == before

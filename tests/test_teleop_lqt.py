@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pourbench.errors import InvalidParameterError
 from pourbench.teleop import SkillLibrary, double_integrator, letter_demos, lqt_track
 
 
@@ -99,3 +100,21 @@ def test_lqt_rejects_bad_input() -> None:
         lqt_track(bad, sigma)
     with pytest.raises(ValueError, match="r"):
         lqt_track(mu, sigma, r=-1.0)
+
+
+def test_lqt_refuses_covariances_that_are_not_positive_definite() -> None:
+    mu = np.zeros((10, 4))
+    with pytest.raises(InvalidParameterError, match=r"sigma\[0\] is not positive definite"):
+        lqt_track(mu, np.zeros((10, 4, 4)))
+    with pytest.raises(InvalidParameterError, match="not positive definite"):
+        lqt_track(mu + 1.0, -np.tile(np.eye(4), (10, 1, 1)))
+    one = np.tile(np.eye(4), (10, 1, 1))
+    one[3] = np.diag([1.0, 1.0, 1.0, 0.0])
+    with pytest.raises(InvalidParameterError, match=r"sigma\[3\]"):
+        lqt_track(mu, one)
+
+
+@pytest.mark.parametrize("dim", [2.5, True, "2", 0])
+def test_double_integrator_refuses_non_integer_dim(dim) -> None:
+    with pytest.raises(InvalidParameterError, match="dim must be"):
+        double_integrator(dim)

@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pourbench.errors import InvalidParameterError
 from pourbench.teleop import (
     DT_S,
     DeadlineDetector,
     NetworkModel,
     Outage,
+    Recognition,
     SkillCPD,
     SkillCPDConfig,
     SkillLibrary,
@@ -17,6 +19,8 @@ from pourbench.teleop import (
     delta_sample,
     feeding_demos,
     letter_demos,
+    random_outages,
+    register_skill,
     task_outage,
 )
 
@@ -99,10 +103,14 @@ def test_no_shared_autonomy_holds_then_jumps(library: SkillLibrary) -> None:
     np.testing.assert_allclose(robot[345:], human[345:])
 
 
-def test_low_confidence_never_switches(library: SkillLibrary) -> None:
+def test_low_confidence_never_switches(library: SkillLibrary, monkeypatch) -> None:
+    # min_confidence is a probability in [0, 1] (1.01 is refused), so force a recognition
+    # whose confidence is below the threshold
+    low = Recognition("C", 0.5, 0.4, {"C": -1.0})
+    monkeypatch.setattr(library, "recognize", lambda *args, **kwargs: low)
     human = _human()
     outage = Outage(300 * DT_S - 1e-6, 1.0)
-    sa, _, states, _ = _replay(library, human, outage, min_confidence=1.01)
+    sa, _, states, _ = _replay(library, human, outage, min_confidence=0.9)
     assert not sa.registrations and "skill" not in states
 
 
@@ -178,3 +186,116 @@ def test_invariant_recognition_handles_rotated_and_scaled_operators(library) -> 
             s = delta_sample(pts, 0.006)
             rec = library.recognize(s[: int(0.45 * s.shape[0])], invariant=True)
             assert rec.label == L and rec.confidence > 0.9
+
+
+_RNG = np.random.default_rng
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        # zero / tiny means would never advance the clock (a hang)
+        (lambda: random_outages(_RNG(0), 10.0, mean_up=0.0, mean_down=0.0), "mean_up"),
+        (lambda: random_outages(_RNG(0), 10.0, mean_down=0.0), "mean_down must be > 0"),
+        (lambda: random_outages(_RNG(0), 10.0, max_down=0.0), "max_down must be > 0"),
+        (lambda: random_outages(_RNG(0), 10.0, mean_up=np.nan), "mean_up must be finite"),
+        (lambda: task_outage(_RNG(0), 10.0, after_fraction=np.nan), "after_fraction"),
+        (lambda: task_outage(_RNG(0), 10.0, after_fraction=2, latest_fraction=3), "<= 1"),
+        (lambda: task_outage(_RNG(0), 10.0, after_fraction=0.9, latest_fraction=0.1), "after"),
+        (lambda: task_outage(_RNG(0), 10.0, min_duration=8.0, max_duration=1.0), "max_dur"),
+        (lambda: DeadlineDetector().packet(np.nan), "t must be finite"),
+        (lambda: SkillCPDConfig(cpd_w=1.5), "cpd_w"),
+        (lambda: SkillCPDConfig(beta=0), "beta must be > 0"),
+        (lambda: SkillCPDConfig(lmbda=-1), "lmbda must be > 0"),
+        (lambda: SkillCPDConfig(cpd_max_iter=2.5), "cpd_max_iter must be an integer"),
+        (lambda: SkillCPDConfig(window=2.5), "window must be an integer"),
+        (lambda: SkillCPDConfig(window=np.nan), "window must be an integer"),
+        (lambda: SkillCPDConfig(min_confidence=2.0), "min_confidence must be in"),
+        (lambda: SkillCPDConfig(cpd_tol=np.nan), "cpd_tol must be finite"),
+        (lambda: SkillCPD(SkillLibrary(0.006)), "no skills"),
+        (lambda: SkillCPD(None), "library must be a fitted SkillLibrary"),
+        (lambda: closest_step(np.full(2, np.nan), np.zeros((20, 2)), 5, 3), "point"),
+        (lambda: closest_step(np.zeros(2), np.zeros((20, 2)), 5, -5), "window must be >= 0"),
+        (lambda: letter_demos("A", -1), "n must be >= 0"),
+        (lambda: letter_demos("A", 2.5), "n must be an integer"),
+        (lambda: letter_demos("A", 1, seed=1.7), "seed must be an integer"),
+        (lambda: letter_demos("A", 1, start=0.5), "start must be an integer"),
+        (lambda: feeding_demos("left", -2), "n must be >= 0"),
+        (lambda: SkillLibrary(0.006, n_states=2.5), "n_states must be an integer"),
+        (lambda: SkillLibrary(0.006, reg=np.nan), "reg must be finite"),
+        (
+            lambda: SkillLibrary(0.006).fit({"A": [np.zeros((3, 2))], "B": [np.zeros((3, 3))]}),
+            "dim",
+        ),
+    ],
+)
+def test_bad_settings_are_refused_up_front(call, match) -> None:
+    with pytest.raises(InvalidParameterError, match=match):
+        call()
+
+
+def test_random_outages_with_valid_means_still_work() -> None:
+    out = random_outages(_RNG(0), 60.0)
+    assert out and all(o.duration <= 5.0 for o in out)
+
+
+def test_refused_step_changes_nothing(library: SkillLibrary) -> None:
+    human = _human()
+    sa = SkillCPD(library)
+    for k in range(200):
+        sa.step(k * DT_S, human[k])
+    snap = (sa.state, sa.position.copy(), len(sa.history), sa.detector.last_rx)
+    for t, p in ((np.nan, human[200]), (np.inf, None), (200 * DT_S, np.zeros(0))):
+        with pytest.raises(InvalidParameterError, match=r"t must be finite|non-empty"):
+            sa.step(t, p)
+        assert (sa.state, len(sa.history), sa.detector.last_rx) == (snap[0], *snap[2:])
+        np.testing.assert_array_equal(sa.position, snap[1])
+    # disconnect detection still works after the refused NaN time
+    for k in range(200, 203):
+        sa.step(k * DT_S, None)
+    assert sa.state == "skill"
+
+
+def test_packet_dimension_must_match_the_skills(library: SkillLibrary) -> None:
+    with pytest.raises(InvalidParameterError, match="the skills have 2"):
+        SkillCPD(library).step(0.0, np.zeros(3))
+
+
+def test_recognize_refuses_bad_alignment_limits(library: SkillLibrary) -> None:
+    pts = delta_sample(_human()[:200], 0.006)
+    with pytest.raises(InvalidParameterError, match="max_scale"):
+        library.recognize(pts, invariant=True, max_scale=0)
+    with pytest.raises(InvalidParameterError, match="max_scale"):
+        library.recognize(pts, invariant=True, max_scale=-1)
+    with pytest.raises(InvalidParameterError, match="max_rotation_deg"):
+        library.recognize(pts, invariant=True, max_rotation_deg=np.nan)
+    with pytest.raises(InvalidParameterError, match="max_rotation_deg"):
+        library.recognize(pts, invariant=True, max_rotation_deg=-5)
+    with pytest.raises(InvalidParameterError, match="identical"):
+        library.recognize(np.ones((10, 2)), invariant=True)
+
+
+def test_register_skill_refuses_a_one_point_skill(library: SkillLibrary) -> None:
+    X = delta_sample(_human()[:150], 0.006)
+    xa = library.skill("C").trajectory
+    with pytest.raises(InvalidParameterError, match="xi_a"):
+        register_skill(X, xa[:1], X[-1], SkillCPDConfig())
+    with pytest.raises(InvalidParameterError, match="X must be"):
+        register_skill(X[:1], xa, X[0], SkillCPDConfig())
+
+
+def test_failed_library_fit_is_atomic() -> None:
+    lib = SkillLibrary(0.006, n_states=3)
+    lib.fit({L: [d.points[::4] for d in letter_demos(L, 2)] for L in "AC"})
+    pts = delta_sample(letter_demos("C", 1, start=10)[0].points, 0.006)[:60]
+    before = lib.recognize(pts)
+    traj_a = lib.skill("A").trajectory.copy()
+    new_a = [d.points[::4] for d in letter_demos("C", 2, start=20)]
+    with pytest.raises(InvalidParameterError, match="skill 'C'"):
+        lib.fit({"A": new_a, "C": [pts[:1]]})
+    with pytest.raises(InvalidParameterError, match="same dimension"):
+        lib.fit({"A": new_a, "F": [np.c_[pts, pts[:, 0]]]})
+    assert lib.labels == ["A", "C"]
+    np.testing.assert_array_equal(lib.skill("A").trajectory, traj_a)
+    lib._cache.clear()  # recompute: the skills themselves must be unchanged
+    assert lib.recognize(pts) == before

@@ -33,7 +33,13 @@ from math import factorial, prod
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, eigh
 
-from pourbench.errors import InvalidParameterError, check_finite
+from pourbench.errors import (
+    InvalidParameterError,
+    check_array,
+    check_finite,
+    check_int,
+    check_positive,
+)
 
 __all__ = [
     "AffineResult",
@@ -54,6 +60,8 @@ def _check_points(name: str, pts: object, dim: int | None = None) -> np.ndarray:
         raise InvalidParameterError(f"{name} must be a 2-D array (points x dims), got {a.shape}")
     if a.shape[0] == 0:
         raise InvalidParameterError(f"{name} is empty (no points)")
+    if a.shape[1] == 0:
+        raise InvalidParameterError(f"{name} has no dimensions, got shape {a.shape}")
     if dim is not None and a.shape[1] != dim:
         raise InvalidParameterError(f"{name} has {a.shape[1]} dims, expected {dim}")
     if not np.all(np.isfinite(a)):
@@ -61,13 +69,26 @@ def _check_points(name: str, pts: object, dim: int | None = None) -> np.ndarray:
     return a
 
 
-def _check_pair(X: object, Y: object, w: float) -> tuple[np.ndarray, np.ndarray, float]:
+def _check_pair(
+    X: object, Y: object, w: float, max_iter: object, tol: float
+) -> tuple[np.ndarray, np.ndarray, float]:
     Xa = _check_points("X", X)
     Ya = _check_points("Y", Y, Xa.shape[1])
     w = check_finite("w", w, minimum=0.0)
     if w >= 1.0:
         raise InvalidParameterError(f"w (outlier weight) must be in [0, 1), got {w}")
+    check_int("max_iter", max_iter, minimum=1)
+    check_finite("tol", tol, minimum=0.0)
+    _check_spread("X", Xa)
     return Xa, Ya, w
+
+
+def _check_spread(name: str, pts: np.ndarray) -> None:
+    """Refuse a degenerate point set: all points identical (zero variance)."""
+    if not np.any(pts != pts[0]):
+        raise InvalidParameterError(
+            f"{name} is degenerate: all {pts.shape[0]} point(s) are identical (zero variance)"
+        )
 
 
 @dataclass(frozen=True)
@@ -174,8 +195,25 @@ def gauss_transform(
     Returns:
         (M, W) transform, or ``None`` when the expansion would cost more than the direct
         sum (the caller then sums directly).
+
+    Raises:
+        InvalidParameterError: ``sources`` / ``targets`` not non-empty finite (N, D) /
+            (M, D) arrays, ``weights`` not a finite (N, W) array, ``h`` not finite and
+            > 0, ``eps`` not in (0, 1), ``max_order`` or ``max_clusters`` not an integer
+            >= 1.
     """
+    sources = check_array("sources", sources, (None, None))
     N, D = sources.shape
+    if N == 0 or D == 0:
+        raise InvalidParameterError(f"sources must be non-empty (N, D), got {sources.shape}")
+    targets = check_array("targets", targets, (None, D))
+    if targets.shape[0] == 0:
+        raise InvalidParameterError("targets is empty (no points)")
+    weights = check_array("weights", weights, (N, None))
+    h = check_positive("h", h)
+    eps = _check_eps("eps", eps)
+    max_order = check_int("max_order", max_order, minimum=1)
+    max_clusters = check_int("max_clusters", max_clusters, minimum=1)
     M = targets.shape[0]
     log_eps = np.log(eps)
 
@@ -236,6 +274,13 @@ def gauss_transform(
     ey = np.where(near, np.exp(-r2), 0.0)
     my = _monomials(dy, alphas) * ey[:, :, None]  # (M, K, A)
     return np.einsum("mka,kaw->mw", my, Ck)
+
+
+def _check_eps(name: str, eps: float) -> float:
+    v = check_finite(name, eps)
+    if not 0.0 < v < 1.0:
+        raise InvalidParameterError(f"{name} must be in (0, 1), got {eps!r}")
+    return v
 
 
 def _init_s2(X: np.ndarray, Y: np.ndarray) -> float:
@@ -348,10 +393,17 @@ def register_rigid(
         Y: (M, D) template points (the set that moves).
         w: outlier weight in [0, 1).
         scale: estimate the scale (else s = 1).
-        max_iter: EM iteration cap.
-        tol: stop when the relative change of sigma^2 falls below this.
+        max_iter: EM iteration cap (integer >= 1).
+        tol: stop when the relative change of sigma^2 falls below this (>= 0).
+
+    Raises:
+        InvalidParameterError: malformed or non-finite points, different dimensions, ``w``
+            outside [0, 1), bad ``max_iter`` / ``tol``, or a degenerate point set (all
+            points identical: ``X`` always, ``Y`` when ``scale`` is estimated).
     """
-    X, Y, w = _check_pair(X, Y, w)
+    X, Y, w = _check_pair(X, Y, w, max_iter, tol)
+    if scale:
+        _check_spread("Y", Y)
     D = X.shape[1]
     s2 = _init_s2(X, Y)
     floor = _S2_FLOOR * max(float(np.var(X, axis=0).sum()), 1e-300)
@@ -389,9 +441,21 @@ def register_rigid(
 def register_affine(
     X: np.ndarray, Y: np.ndarray, w: float = 0.0, *, max_iter: int = 200, tol: float = 1e-10
 ) -> AffineResult:
-    """Affine CPD of ``Y`` onto ``X`` (see :func:`register_rigid` for the arguments)."""
-    X, Y, w = _check_pair(X, Y, w)
+    """Affine CPD of ``Y`` onto ``X`` (see :func:`register_rigid` for the arguments).
+
+    Raises:
+        InvalidParameterError: as :func:`register_rigid`; also when ``Y`` does not span all
+            D dimensions (fewer than D + 1 points, or all on one line / plane), since the
+            linear part is then undetermined.
+    """
+    X, Y, w = _check_pair(X, Y, w, max_iter, tol)
     D = X.shape[1]
+    if Y.shape[0] <= D or np.linalg.matrix_rank(Y - Y.mean(axis=0)) < D:
+        raise InvalidParameterError(
+            f"Y must span all {D} dimensions for an affine registration (at least {D + 1} "
+            f"points, not all on one line or plane), got {Y.shape[0]} points of rank "
+            f"{int(np.linalg.matrix_rank(Y - Y.mean(axis=0)))}"
+        )
     s2 = _init_s2(X, Y)
     floor = _S2_FLOOR * max(float(np.var(X, axis=0).sum()), 1e-300)
     B, t = np.eye(D), np.zeros(D)
@@ -406,7 +470,13 @@ def register_affine(
         muy = Y.T @ e.P1 / e.Np
         XPY = e.PX.T @ Y - e.Np * np.outer(mux, muy)  # Xhat^T P^T Yhat  (D, D)
         YPY = (Y * e.P1[:, None]).T @ Y - e.Np * np.outer(muy, muy)
-        B = np.linalg.solve(YPY.T, XPY.T).T
+        try:
+            B = np.linalg.solve(YPY.T, XPY.T).T
+        except np.linalg.LinAlgError as exc:
+            raise InvalidParameterError(
+                "affine CPD failed: the weighted template Y became singular (too few "
+                f"matched points spanning {D} dimensions)"
+            ) from exc
         t = mux - B @ muy
         xx = float(np.sum(e.Pt1 * np.sum(X**2, axis=1)) - e.Np * mux @ mux)
         new = (xx - float(np.trace(XPY @ B.T))) / (e.Np * D)
@@ -451,20 +521,31 @@ def register_nonrigid(
         fgt: compute E-steps with the improved Fast Gauss Transform where it is cheaper.
         lowrank: use the leading eigenpairs of the kernel (eigenvalues above
             ``rank_tol`` times the largest).
-        rank_tol: relative eigenvalue cut for ``lowrank``.
-        max_rank: at most this many eigenpairs are computed for ``lowrank``.
-        fgt_eps: FGT error per unit weight.
+        rank_tol: relative eigenvalue cut for ``lowrank``, in [0, 1).
+        max_rank: at most this many eigenpairs are computed for ``lowrank`` (>= 1).
+        fgt_eps: FGT error per unit weight, in (0, 1).
         normalize: register zero-mean, unit-RMS copies (then denormalise the result).
         sigma2: initial mixture variance in the input unit squared (e.g. the final variance
-            of a rigid registration that already aligned ``Y``); default: from the data.
-        max_iter: EM iteration cap.
-        tol: stop when the relative change of sigma^2 falls below this.
+            of a rigid registration that already aligned ``Y``), > 0; default: from the data.
+        max_iter: EM iteration cap (integer >= 1).
+        tol: stop when the relative change of sigma^2 falls below this (>= 0).
+
+    Raises:
+        InvalidParameterError: as :func:`register_rigid` (``X`` must not be degenerate; a
+            degenerate ``Y`` is allowed), or any of the ranges above violated.
     """
-    X, Y, w = _check_pair(X, Y, w)
+    X, Y, w = _check_pair(X, Y, w, max_iter, tol)
     beta = check_finite("beta", beta)
     lmbda = check_finite("lmbda", lmbda)
     if beta <= 0 or lmbda <= 0:
         raise InvalidParameterError(f"beta and lmbda must be > 0, got {beta}, {lmbda}")
+    rt = check_finite("rank_tol", rank_tol, minimum=0.0)
+    if rt >= 1.0:
+        raise InvalidParameterError(f"rank_tol must be in [0, 1), got {rank_tol!r}")
+    check_int("max_rank", max_rank, minimum=1)
+    _check_eps("fgt_eps", fgt_eps)
+    if sigma2 is not None:
+        check_positive("sigma2", sigma2)
     M, D = Y.shape
     if normalize:
         cx, cy = X.mean(0), Y.mean(0)

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from pourbench.errors import InvalidParameterError, UnknownNameError
+from pourbench.errors import InvalidParameterError, UnknownNameError, check_int
 
 __all__ = [
     "DT_S",
@@ -270,6 +270,14 @@ def _demo(
     return Demo(label, t, pts)
 
 
+def _check_counts(n: object, seed: object, start: object) -> tuple[int, int, int]:
+    return (
+        check_int("n", n, minimum=0),
+        check_int("seed", seed, minimum=0),
+        check_int("start", start, minimum=0),
+    )
+
+
 def _rng(seed: int, skill: int, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(skill), int(index)]))
 
@@ -282,7 +290,12 @@ def letter_demos(letter: str, n: int = 10, *, seed: int = 0, start: int = 0) -> 
         n: number of demonstrations.
         seed: dataset seed; demo ``i`` depends only on (seed, letter, i).
         start: index of the first demo (use e.g. ``start=10`` for held-out demos).
+
+    Raises:
+        InvalidParameterError: ``n``, ``seed`` or ``start`` is not an integer >= 0.
+        UnknownNameError: ``letter`` is not a letter.
     """
+    n, seed, start = _check_counts(n, seed, start)
     tpl = letter_template(letter)
     k = LETTERS.index(str(letter).upper())
     return [
@@ -293,6 +306,7 @@ def letter_demos(letter: str, n: int = 10, *, seed: int = 0, start: int = 0) -> 
 
 def feeding_demos(target: str, n: int = 5, *, seed: int = 0, start: int = 0) -> list[Demo]:
     """``n`` 3-D spoon-feeding demonstrations toward ``target`` (see :func:`letter_demos`)."""
+    n, seed, start = _check_counts(n, seed, start)
     tpl = feeding_template(target)
     k = 100 + FEEDING_TARGETS.index(target)
     return [

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
-from pourbench.errors import InvalidParameterError
+from pourbench.errors import InvalidParameterError, check_finite, check_int, check_positive
 
 __all__ = ["HSMM", "Progress", "trajectory_features"]
 
@@ -50,6 +50,23 @@ def trajectory_features(points: np.ndarray) -> np.ndarray:
     vel = np.diff(pts, axis=0)
     vel = np.vstack([vel[:1], vel])
     return np.hstack([pts - pts[0], vel])
+
+
+def _check_reg(reg: object, F: int | None = None) -> np.ndarray:
+    """``reg`` as a finite, positive array (broadcast to length ``F`` when given)."""
+    try:
+        r = np.asarray(reg, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidParameterError(f"reg must be numbers, got {reg!r}") from exc
+    if r.ndim > 1 or r.size == 0 or not np.all(np.isfinite(r)) or not np.all(r > 0):
+        raise InvalidParameterError(
+            f"reg must be a finite scalar or vector with every entry > 0, got {reg!r}"
+        )
+    if F is None:
+        return r
+    if r.ndim == 1 and r.size not in (1, F):
+        raise InvalidParameterError(f"reg has {r.size} entries, the features have F={F}")
+    return np.broadcast_to(r, (F,))
 
 
 def _log_gauss(X: np.ndarray, mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -90,8 +107,13 @@ class HSMM:
         n_states: number of states K (thesis: 5).
         left_right: restrict transitions to i -> i+1 and start in state 0.
         reg: diagonal added to each covariance (feature units squared); a scalar or a vector
-            of length F.
-        min_duration_std: floor on the duration standard deviation, samples.
+            of length F, every entry finite and > 0 (it keeps the covariances invertible).
+        min_duration_std: floor on the duration standard deviation, samples (finite, > 0:
+            with one demonstration every observed duration spread is 0).
+
+    Raises:
+        InvalidParameterError: ``n_states`` not an integer >= 1, ``reg`` not finite and
+            > 0 everywhere, or ``min_duration_std`` not finite and > 0.
     """
 
     def __init__(
@@ -102,12 +124,11 @@ class HSMM:
         reg: float | np.ndarray = 1e-6,
         min_duration_std: float = 1.0,
     ) -> None:
-        if int(n_states) < 1:
-            raise InvalidParameterError(f"n_states must be >= 1, got {n_states}")
-        self.n_states = int(n_states)
+        self.n_states = check_int("n_states", n_states, minimum=1)
         self.left_right = left_right
         self.reg = reg
-        self.min_duration_std = float(min_duration_std)
+        _check_reg(reg)
+        self.min_duration_std = check_positive("min_duration_std", min_duration_std)
         self.priors = np.zeros(0)
         self.trans = np.zeros((0, 0))  # HMM transitions (with self loops), used in EM
         self.mu = np.zeros((0, 0))
@@ -120,28 +141,71 @@ class HSMM:
     def fit(self, sequences: Sequence[np.ndarray], n_iter: int = 30, tol: float = 1e-4) -> HSMM:
         """Learn the parameters from demonstrations.
 
+        The model changes only when the fit succeeds: on any error it keeps its previous
+        parameters.
+
         Args:
-            sequences: list of (T_n, F) feature sequences (same F).
-            n_iter: EM iteration cap.
-            tol: stop when the per-sample log-likelihood improves by less than this.
+            sequences: list of (T_n, F) feature sequences (same F >= 1), each with at least
+                ``n_states`` samples; the equal-time initial split must give every state at
+                least 2 samples in all (its covariance), e.g. one sequence of
+                ``2 * n_states`` samples.
+            n_iter: EM iteration cap (integer >= 1).
+            tol: stop when the per-sample log-likelihood improves by less than this (>= 0).
+
+        Raises:
+            InvalidParameterError: malformed, non-finite or too short sequences, bad
+                ``n_iter`` / ``tol`` / ``reg``, or EM that produced non-finite parameters
+                (degenerate data).
         """
+        n_iter = check_int("n_iter", n_iter, minimum=1)
+        tol = check_finite("tol", tol, minimum=0.0)
         seqs = [np.asarray(s, dtype=float) for s in sequences]
         if not seqs:
             raise InvalidParameterError("sequences is empty: need at least one demonstration")
         F = seqs[0].shape[1] if seqs[0].ndim == 2 else -1
         K = self.n_states
         for i, s in enumerate(seqs):
-            if s.ndim != 2 or s.shape[1] != F:
-                raise InvalidParameterError(
-                    f"sequences[{i}] has shape {s.shape}, expected (T, {F})"
-                )
+            if s.ndim != 2 or s.shape[1] != F or F < 1:
+                want = f"(T, {F})" if F >= 1 else "(T, F) with F >= 1"
+                raise InvalidParameterError(f"sequences[{i}] has shape {s.shape}, expected {want}")
             if s.shape[0] < K:
                 raise InvalidParameterError(
                     f"sequences[{i}] has {s.shape[0]} samples, fewer than n_states={K}"
                 )
             if not np.all(np.isfinite(s)):
                 raise InvalidParameterError(f"sequences[{i}] contains NaN or infinite values")
-        reg = np.broadcast_to(np.asarray(self.reg, dtype=float), (F,))
+        per_state = np.zeros(K, dtype=int)
+        for s in seqs:
+            per_state += [len(part) for part in np.array_split(np.arange(s.shape[0]), K)]
+        if per_state.min() < 2:
+            raise InvalidParameterError(
+                f"sequences too short for n_states={K}: the equal-time split gives state "
+                f"{int(np.argmin(per_state))} only {int(per_state.min())} sample(s), need >= 2 "
+                f"(e.g. one sequence of {2 * K} samples)"
+            )
+        reg = _check_reg(self.reg, F)
+        saved = dict(self.__dict__)
+        try:
+            self._fit(seqs, reg, n_iter, tol)
+            params = (self.priors, self.trans, self.mu, self.sigma, self.dur_mu, self.dur_sigma)
+            if not all(np.all(np.isfinite(a)) for a in params):
+                raise InvalidParameterError(
+                    "EM produced non-finite parameters (degenerate sequences?)"
+                )
+        except np.linalg.LinAlgError as exc:
+            self.__dict__.update(saved)
+            raise InvalidParameterError(
+                f"EM failed ({exc}): a covariance became singular; increase reg"
+            ) from exc
+        except BaseException:
+            self.__dict__.update(saved)
+            raise
+        return self
+
+    def _fit(self, seqs: list[np.ndarray], reg: np.ndarray, n_iter: int, tol: float) -> None:
+        """EM on validated sequences (see :meth:`fit`); sets the parameters."""
+        F = seqs[0].shape[1]
+        K = self.n_states
         # initialisation: equal-time split
         buckets: list[list[np.ndarray]] = [[] for _ in range(K)]
         for s in seqs:
@@ -213,7 +277,6 @@ class HSMM:
         self.dur_sigma = np.array(
             [max(np.std(r) if len(r) > 1 else 0.0, self.min_duration_std) for r in runs]
         )
-        return self
 
     def _forward_backward(
         self, lB: np.ndarray, mask: np.ndarray
@@ -363,7 +426,7 @@ class HSMM:
         """
         self._check_fitted()
         K = self.n_states
-        T = round(float(self.dur_mu.sum())) if n_steps is None else int(n_steps)
+        T = round(float(self.dur_mu.sum())) if n_steps is None else check_int("n_steps", n_steps)
         if T < 1:
             raise InvalidParameterError(f"n_steps must be >= 1, got {n_steps}")
         lp, lsurv = self._log_durations(T)

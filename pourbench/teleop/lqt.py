@@ -24,15 +24,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, check_finite
+from pourbench.errors import InvalidParameterError, check_finite, check_int
 
 __all__ = ["LQTResult", "double_integrator", "lqt_track"]
 
 
 def double_integrator(dim: int, dt: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """``(A, B)`` of Eq. 2.46 for ``dim`` positions, time step ``dt``."""
-    if int(dim) < 1:
-        raise InvalidParameterError(f"dim must be >= 1, got {dim}")
+    """``(A, B)`` of Eq. 2.46 for ``dim`` positions, time step ``dt``.
+
+    Raises:
+        InvalidParameterError: ``dim`` not an integer >= 1 or ``dt`` not finite and > 0.
+    """
+    dim = check_int("dim", dim, minimum=1)
     dt = check_finite("dt", dt)
     if dt <= 0:
         raise InvalidParameterError(f"dt must be > 0, got {dt}")
@@ -81,10 +84,15 @@ def lqt_track(
         r: control weight, ``R = r I`` (units of Q times (step^2 / position)^2).
         dt: step duration of the double integrator.
         x0: (2D,) initial state (defaults to ``mu[0]``).
+
+    Raises:
+        InvalidParameterError: malformed or non-finite ``mu`` / ``sigma`` / ``x0``, a
+            ``sigma_t`` that is not positive definite (singular or indefinite: ``Q_t`` must
+            be its inverse and a valid cost weight), or ``r`` / ``dt`` not finite and > 0.
     """
     mu = np.asarray(mu, dtype=float)
     sigma = np.asarray(sigma, dtype=float)
-    if mu.ndim != 2 or mu.shape[0] < 2 or mu.shape[1] % 2:
+    if mu.ndim != 2 or mu.shape[0] < 2 or mu.shape[1] < 2 or mu.shape[1] % 2:
         raise InvalidParameterError(f"mu must be (T >= 2, 2D), got {mu.shape}")
     T, n = mu.shape
     if sigma.shape != (T, n, n):
@@ -94,6 +102,13 @@ def lqt_track(
     r = check_finite("r", r)
     if r <= 0:
         raise InvalidParameterError(f"r must be > 0, got {r}")
+    try:
+        np.linalg.cholesky(sigma)
+    except np.linalg.LinAlgError:
+        bad = next(t for t in range(T) if np.any(np.linalg.eigvalsh(sigma[t]) <= 0))
+        raise InvalidParameterError(
+            f"sigma[{bad}] is not positive definite (singular or indefinite covariance)"
+        ) from None
     D = n // 2
     A, B = double_integrator(D, dt)
     R = r * np.eye(D)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, check_finite
+from pourbench.errors import InvalidParameterError, check_finite, check_positive
 
 __all__ = ["DeadlineDetector", "NetworkModel", "Outage", "random_outages", "task_outage"]
 
@@ -59,8 +59,14 @@ class DeadlineDetector:
         self.last_rx: float | None = None
 
     def packet(self, t: float) -> None:
-        """Record a packet received at ``t`` seconds."""
-        self.last_rx = float(t)
+        """Record a packet received at ``t`` seconds.
+
+        Raises:
+            InvalidParameterError: ``t`` is not a finite number (a NaN time would disable
+                the detector: no later time would ever be past the deadline); the detector
+                is left unchanged.
+        """
+        self.last_rx = check_finite("t", t)
 
     def disconnected(self, t: float) -> bool:
         """True when the last packet is older than the deadline at time ``t``."""
@@ -85,8 +91,24 @@ def task_outage(
         latest_fraction: latest start as a fraction of the task.
         max_duration: longest outage, seconds (thesis: 5 s).
         min_duration: shortest outage, seconds.
+
+    Raises:
+        InvalidParameterError: unless ``0 <= after_fraction <= latest_fraction <= 1`` and
+            ``0 <= min_duration <= max_duration``, all finite (``task_duration`` finite >= 0).
     """
     T = check_finite("task_duration", task_duration, minimum=0.0)
+    after = check_finite("after_fraction", after_fraction, minimum=0.0)
+    latest = check_finite("latest_fraction", latest_fraction, minimum=0.0)
+    if latest > 1.0 or after > latest:
+        raise InvalidParameterError(
+            "need 0 <= after_fraction <= latest_fraction <= 1, got "
+            f"after_fraction={after_fraction!r}, latest_fraction={latest_fraction!r}"
+        )
+    lo = check_finite("min_duration", min_duration, minimum=0.0)
+    if check_finite("max_duration", max_duration) < lo:
+        raise InvalidParameterError(
+            f"max_duration must be >= min_duration={min_duration!r}, got {max_duration!r}"
+        )
     start = rng.uniform(after_fraction * T, latest_fraction * T)
     return Outage(float(start), float(rng.uniform(min_duration, max_duration)))
 
@@ -99,8 +121,26 @@ def random_outages(
     mean_down: float = 1.0,
     max_down: float = 5.0,
 ) -> list[Outage]:
-    """Alternating up/down periods with exponential lengths (down capped at ``max_down``)."""
+    """Alternating up/down periods with exponential lengths (down capped at ``max_down``).
+
+    Args:
+        rng: random generator.
+        horizon: outages start before this time, seconds (finite, >= 0).
+        mean_up: mean time between outages, seconds.
+        mean_down: mean outage length, seconds.
+        max_down: longest outage, seconds.
+
+    The cost grows with the number of outages, about ``horizon / mean_up``: tiny means on
+    a long horizon take long (there is no packet period here to bound them by).
+
+    Raises:
+        InvalidParameterError: ``mean_up``, ``mean_down`` or ``max_down`` is not finite and
+            > 0 (zero lengths would never advance the clock), or ``horizon`` is not finite.
+    """
     horizon = check_finite("horizon", horizon, minimum=0.0)
+    check_positive("mean_up", mean_up)
+    check_positive("mean_down", mean_down)
+    check_positive("max_down", max_down)
     out: list[Outage] = []
     t = float(rng.exponential(mean_up))
     while t < horizon:

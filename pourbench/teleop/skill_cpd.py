@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, check_finite
+from pourbench.errors import InvalidParameterError, check_finite, check_int, check_positive
 from pourbench.teleop.cpd import register_nonrigid, register_rigid
 from pourbench.teleop.network import DeadlineDetector
 from pourbench.teleop.skills import SkillLibrary
@@ -78,6 +78,13 @@ class SkillCPDConfig:
             skill with rigid CPD (see :meth:`SkillLibrary.recognize`); off in the thesis.
         cpd_tol: CPD stops when sigma^2 changes by less than this fraction per iteration.
         cpd_max_iter: CPD iteration cap (rigid and non-rigid each).
+
+    Raises:
+        InvalidParameterError: at construction, for an unknown mode; ``dt``, ``deadline``,
+            ``delta_d``, ``alpha_step``, ``beta`` or ``lmbda`` not finite and > 0;
+            ``min_confidence`` outside [0, 1]; ``rigid_error`` or ``cpd_tol`` negative or
+            not finite; ``cpd_w`` outside [0, 1); ``window`` not an integer >= 0;
+            ``cpd_max_iter`` not an integer >= 1.
     """
 
     mode: str = "skill_cpd"
@@ -98,15 +105,23 @@ class SkillCPDConfig:
     cpd_max_iter: int = 100
 
     def __post_init__(self) -> None:
-        if self.mode not in MODES:
+        if not isinstance(self.mode, str) or self.mode not in MODES:
             raise InvalidParameterError(f"mode must be one of {MODES}, got {self.mode!r}")
-        for name in ("dt", "deadline", "delta_d", "alpha_step"):
-            if check_finite(name, getattr(self, name)) <= 0:
-                raise InvalidParameterError(f"{name} must be > 0, got {getattr(self, name)}")
-        check_finite("min_confidence", self.min_confidence, minimum=0.0)
+        for name in ("dt", "deadline", "delta_d", "alpha_step", "beta", "lmbda"):
+            check_positive(name, getattr(self, name))
+        conf = check_finite("min_confidence", self.min_confidence, minimum=0.0)
+        if conf > 1.0:
+            raise InvalidParameterError(
+                f"min_confidence must be in [0, 1] (a posterior probability), "
+                f"got {self.min_confidence!r}"
+            )
         check_finite("rigid_error", self.rigid_error, minimum=0.0)
-        if int(self.window) < 0:
-            raise InvalidParameterError(f"window must be >= 0, got {self.window}")
+        check_int("window", self.window, minimum=0)
+        w = check_finite("cpd_w", self.cpd_w, minimum=0.0)
+        if w >= 1.0:
+            raise InvalidParameterError(f"cpd_w (outlier weight) must be in [0, 1), got {w!r}")
+        check_finite("cpd_tol", self.cpd_tol, minimum=0.0)
+        check_int("cpd_max_iter", self.cpd_max_iter, minimum=1)
 
 
 @dataclass
@@ -140,7 +155,25 @@ class Registration:
 
 
 def closest_step(point: np.ndarray, traj: np.ndarray, centre: int, window: int) -> int:
-    """Index of the point of ``traj`` closest to ``point`` within ``centre ± window`` (Eq. 5.9)."""
+    """Index of the point of ``traj`` closest to ``point`` within ``centre ± window`` (Eq. 5.9).
+
+    Raises:
+        InvalidParameterError: ``traj`` is not a non-empty finite (M, D) array, ``point``
+            not a finite (D,) vector, ``centre`` not an integer or ``window`` not an
+            integer >= 0.
+    """
+    traj = np.asarray(traj, dtype=float)
+    if traj.ndim != 2 or traj.shape[0] == 0:
+        raise InvalidParameterError(f"traj must be a non-empty (M, D) array, got {traj.shape}")
+    point = np.asarray(point, dtype=float)
+    if point.shape != (traj.shape[1],) or not np.all(np.isfinite(point)):
+        raise InvalidParameterError(
+            f"point must be a finite vector of length {traj.shape[1]}, got {point!r}"
+        )
+    if not np.all(np.isfinite(traj)):
+        raise InvalidParameterError("traj contains NaN or infinite coordinates")
+    check_int("centre", centre)
+    check_int("window", window, minimum=0)
     lo = max(0, int(centre) - int(window))
     hi = min(traj.shape[0], int(centre) + int(window) + 1)
     if lo >= hi:
@@ -195,7 +228,19 @@ def register_skill(
         ``(xi_c, kind, error, step, nonrigid_template)``: registered skill, ``"rigid"`` /
         ``"nonrigid"`` / ``"none"``, mean distance from X to ``xi_c`` (m), closest step, and
         the template given to non-rigid CPD (``None`` if it did not run).
+
+    Raises:
+        InvalidParameterError: ``X`` or ``xi_a`` has fewer than 2 points, their dimensions
+            differ, or (from CPD) a point set is degenerate (all points identical).
     """
+    X = np.asarray(X, dtype=float)
+    xi_a = np.asarray(xi_a, dtype=float)
+    if X.ndim != 2 or X.shape[0] < 2:
+        raise InvalidParameterError(f"X must be (N >= 2, D) operator points, got {X.shape}")
+    if xi_a.ndim != 2 or xi_a.shape[0] < 2 or xi_a.shape[1] != X.shape[1]:
+        raise InvalidParameterError(
+            f"xi_a must be (M >= 2, {X.shape[1]}) skill points, got {xi_a.shape}"
+        )
     # rough disconnection index: skill steps and operator samples are both ~Δd apart
     i0 = min(X.shape[0] - 1, xi_a.shape[0] - 1)
     template = None
@@ -236,9 +281,23 @@ class SkillCPD:
     Args:
         library: fitted :class:`~pourbench.teleop.skills.SkillLibrary`.
         config: parameters.
+
+    Raises:
+        InvalidParameterError: ``library`` is not a fitted ``SkillLibrary`` (no skills) or
+            ``config`` is not a ``SkillCPDConfig``.
     """
 
     def __init__(self, library: SkillLibrary, config: SkillCPDConfig | None = None) -> None:
+        if not isinstance(library, SkillLibrary):
+            raise InvalidParameterError(
+                f"library must be a fitted SkillLibrary, got {type(library).__name__}"
+            )
+        if not library.skills:
+            raise InvalidParameterError("library has no skills: call library.fit() first")
+        if config is not None and not isinstance(config, SkillCPDConfig):
+            raise InvalidParameterError(
+                f"config must be a SkillCPDConfig, got {type(config).__name__}"
+            )
         self.library = library
         self.config = config or SkillCPDConfig()
         self.detector = DeadlineDetector(self.config.deadline)
@@ -308,21 +367,35 @@ class SkillCPD:
         """Advance one packet period.
 
         Args:
-            t: time, s.
+            t: time, s (finite).
             packet: the operator's position (D,), metres, or ``None`` when nothing arrived.
 
         Returns:
             The robot's commanded position (D,), metres.
+
+        Raises:
+            InvalidParameterError: ``t`` is not finite, or ``packet`` is not a finite,
+                non-empty 1-D position with the skills' (then the robot's) dimension. A
+                refused call changes nothing.
         """
         cfg = self.config
+        t = check_finite("t", t)
         if packet is not None:
             h = np.asarray(packet, dtype=float)
-            if h.ndim != 1 or not np.all(np.isfinite(h)):
-                raise InvalidParameterError(f"packet must be a finite 1-D position, got {packet!r}")
+            if h.ndim != 1 or h.shape[0] == 0 or not np.all(np.isfinite(h)):
+                raise InvalidParameterError(
+                    f"packet must be a finite, non-empty 1-D position, got {packet!r}"
+                )
             if self.position is not None and h.shape != self.position.shape:
                 raise InvalidParameterError(
                     f"packet has {h.shape[0]} dims, the robot has {self.position.shape[0]}"
                 )
+            if self.position is None:
+                dim = next(iter(self.library.skills.values())).trajectory.shape[1]
+                if h.shape[0] != dim:
+                    raise InvalidParameterError(
+                        f"packet has {h.shape[0]} dims, the skills have {dim}"
+                    )
             if self.state in ("direct", "hold"):
                 consecutive = (
                     self._last_packet_t is not None and t - self._last_packet_t <= cfg.deadline

@@ -20,7 +20,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, UnknownNameError
+from pourbench.errors import (
+    InvalidParameterError,
+    UnknownNameError,
+    check_finite,
+    check_int,
+    check_positive,
+)
 from pourbench.teleop.cpd import register_rigid
 from pourbench.teleop.demos import delta_sample
 from pourbench.teleop.hsmm import HSMM, Progress, trajectory_features
@@ -73,6 +79,10 @@ class SkillLibrary:
         n_states: HSMM states K (thesis: 5).
         lqt_r: LQT control weight (see :func:`~pourbench.teleop.lqt.lqt_track`).
         reg: covariance regulariser of the HSMM, feature units squared.
+
+    Raises:
+        InvalidParameterError: ``delta_d``, ``lqt_r`` or ``reg`` not finite and > 0, or
+            ``n_states`` not an integer >= 1.
     """
 
     def __init__(
@@ -83,12 +93,10 @@ class SkillLibrary:
         lqt_r: float = 1e-3,
         reg: float = 1e-6,
     ) -> None:
-        if not delta_d > 0:
-            raise InvalidParameterError(f"delta_d must be > 0, got {delta_d}")
-        self.delta_d = float(delta_d)
-        self.n_states = int(n_states)
-        self.lqt_r = float(lqt_r)
-        self.reg = float(reg)
+        self.delta_d = check_positive("delta_d", delta_d)
+        self.n_states = check_int("n_states", n_states, minimum=1)
+        self.lqt_r = check_positive("lqt_r", lqt_r)
+        self.reg = check_positive("reg", reg)
         self.skills: dict[str, Skill] = {}
         self._cache: dict[tuple[object, ...], Recognition] = {}
 
@@ -100,29 +108,85 @@ class SkillLibrary:
     def fit(self, demos: Mapping[str, Sequence[np.ndarray]]) -> SkillLibrary:
         """Learn every skill from raw demonstrations.
 
+        Skills already in the library and not named in ``demos`` are kept; the named ones
+        are (re)learnt. The update is atomic: every skill is learnt first, and the library
+        (and its recognition cache) changes only when all of them succeeded.
+
         Args:
             demos: skill label -> list of (n, D) raw trajectories (metres, any sampling rate).
+
+        Raises:
+            InvalidParameterError: ``demos`` is empty or not a mapping, a skill has no
+                demonstrations, a demonstration is malformed or too short (after Δd
+                sampling it needs more than ``n_states`` points), or the skills (new and
+                kept) do not all have the same dimension D. The library is then unchanged.
         """
+        if not isinstance(demos, Mapping):
+            raise InvalidParameterError(
+                f"demos must be a mapping label -> demonstrations, got {type(demos).__name__}"
+            )
         if not demos:
             raise InvalidParameterError("demos is empty: need at least one skill")
+        # validate everything before learning anything
+        dims: dict[str, int] = {k: sk.trajectory.shape[1] for k, sk in self.skills.items()}
+        prepared: dict[str, list[np.ndarray]] = {}
         for label, trajs in demos.items():
+            if isinstance(trajs, np.ndarray):
+                raise InvalidParameterError(
+                    f"skill {label!r}: demonstrations must be a list of (n, D) arrays, "
+                    f"got one array of shape {trajs.shape}"
+                )
             if not trajs:
                 raise InvalidParameterError(f"skill {label!r} has no demonstrations")
-            paths = [delta_sample(np.asarray(t, dtype=float), self.delta_d) for t in trajs]
-            model = HSMM(self.n_states, reg=self.reg).fit([trajectory_features(p) for p in paths])
-            origin = np.mean([p[0] for p in paths], axis=0)
-            act = model.state_sequence()
-            mu = act @ model.mu
-            sigma = model.sigma[np.argmax(act, axis=1)]
-            # start where the demonstrations start (relative position 0), at state 0's velocity
-            D = origin.size
-            x0 = np.concatenate([np.zeros(D), model.mu[0, D:]])
-            rep = lqt_track(mu, sigma, r=self.lqt_r, x0=x0)
-            mean_path = mu[:, :D] + origin
-            traj = rep.positions + origin
-            self.skills[str(label)] = Skill(str(label), model, origin, mean_path, traj)
+            arrs = []
+            for i, t in enumerate(trajs):
+                try:
+                    a = np.asarray(t, dtype=float)
+                except (TypeError, ValueError) as exc:
+                    raise InvalidParameterError(
+                        f"skill {label!r}: demonstration {i} must be numbers"
+                    ) from exc
+                if a.ndim != 2 or a.shape[1] < 1:
+                    raise InvalidParameterError(
+                        f"skill {label!r}: demonstration {i} must be (n, D), got {a.shape}"
+                    )
+                if a.shape[1] != (arrs[0].shape[1] if arrs else a.shape[1]):
+                    raise InvalidParameterError(
+                        f"skill {label!r}: demonstration {i} has {a.shape[1]} dims, "
+                        f"demonstration 0 has {arrs[0].shape[1]}"
+                    )
+                arrs.append(a)
+            prepared[str(label)] = arrs
+            dims[str(label)] = arrs[0].shape[1]
+        if len(set(dims.values())) > 1:
+            raise InvalidParameterError(
+                f"all skills must have the same dimension, got {dict(sorted(dims.items()))}"
+            )
+        learnt: dict[str, Skill] = {}
+        for label, arrs in prepared.items():
+            try:
+                learnt[label] = self._learn(label, arrs)
+            except InvalidParameterError as exc:
+                raise InvalidParameterError(f"skill {label!r}: {exc}") from exc
+        self.skills.update(learnt)
         self._cache.clear()
         return self
+
+    def _learn(self, label: str, trajs: list[np.ndarray]) -> Skill:
+        """One skill from its (validated) raw demonstrations; touches no state."""
+        paths = [delta_sample(t, self.delta_d) for t in trajs]
+        model = HSMM(self.n_states, reg=self.reg).fit([trajectory_features(p) for p in paths])
+        origin = np.mean([p[0] for p in paths], axis=0)
+        act = model.state_sequence()
+        mu = act @ model.mu
+        sigma = model.sigma[np.argmax(act, axis=1)]
+        # start where the demonstrations start (relative position 0), at state 0's velocity
+        D = origin.size
+        x0 = np.concatenate([np.zeros(D), model.mu[0, D:]])
+        rep = lqt_track(mu, sigma, r=self.lqt_r, x0=x0)
+        mean_path = mu[:, :D] + origin
+        traj = rep.positions + origin
+        return Skill(label, model, origin, mean_path, traj)
 
     def skill(self, label: str) -> Skill:
         """The skill named ``label``."""
@@ -148,16 +212,32 @@ class SkillLibrary:
                 scaled operator is still recognised. Alignments rotating by more than
                 ``max_rotation_deg`` or scaling by more than ``max_scale`` (or less than its
                 inverse) are rejected.
-            max_rotation_deg: largest accepted rotation, degrees.
-            max_scale: largest accepted scale factor.
+            max_rotation_deg: largest accepted rotation, degrees (finite, >= 0).
+            max_scale: largest accepted scale factor (finite, >= 1).
+
+        Raises:
+            InvalidParameterError: the library is empty, ``points`` is not a finite (n >= 2,
+                D) array with the skills' D, or ``max_rotation_deg`` / ``max_scale`` is out
+                of its range.
         """
         if not self.skills:
             raise InvalidParameterError("the skill library is empty: call fit() first")
+        check_finite("max_rotation_deg", max_rotation_deg, minimum=0.0)
+        check_finite("max_scale", max_scale, minimum=1.0)
         pts = np.asarray(points, dtype=float)
+        dim = next(iter(self.skills.values())).trajectory.shape[1]
+        if pts.ndim != 2 or pts.shape[1] != dim:
+            raise InvalidParameterError(
+                f"points must be (n, {dim}) like the skills, got shape {pts.shape}"
+            )
         key = (pts.tobytes(), pts.shape, invariant, max_rotation_deg, max_scale)
         if key in self._cache:
             return self._cache[key]
         f = trajectory_features(pts)
+        if invariant and not np.any(pts != pts[0]):
+            raise InvalidParameterError(
+                "points are all identical: an invariant alignment needs a spread of points"
+            )
         if invariant:
             prog = {}
             for k, sk in self.skills.items():
