@@ -116,3 +116,39 @@ def test_bad_obstacles_raise_value_error():
         Sphere([0, 0, np.nan], 0.1)
     with pytest.raises(InvalidParameterError):
         Box([0, 0, 0], [0.1, -0.1, 0.1])
+
+
+@pytest.mark.parametrize(
+    ("make", "match"),
+    [
+        (lambda: Sphere([0, 0, 0], 0.0), r"sphere radius must be finite and > 0, got 0"),
+        (lambda: Sphere([0, 0, 0], np.nan), r"sphere radius .* got nan"),
+        (lambda: Sphere([0, 0, 0], True), r"sphere radius must be a number, got True"),
+        (lambda: Capsule([0, 0, 0], [0, 0, 1], 0.0), r"capsule radius .* > 0, got 0"),
+        (lambda: Box([0, 0, 0], [0.1] * 3, np.diag([1.0, 1.0, -1.0])), r"det \+1"),
+        (lambda: Box([0, 0, 0], [0.1] * 3, np.eye(2)), r"box rotation must be 3x3"),
+        (lambda: Box([0, 0, 0], [0.1] * 3, np.full((3, 3), np.nan)), r"box rotation"),
+    ],
+)
+def test_bad_obstacle_parameters_are_refused(make, match):
+    with pytest.raises(InvalidParameterError, match=match):
+        make()
+
+
+def test_degenerate_capsule_is_a_sphere():
+    """A capsule with a == b is allowed: it is the sphere of its radius."""
+    a = np.array([[-0.3, 0.0, 0.0]])
+    b = np.array([[0.3, 0.0, 0.0]])
+    cap = Capsule([0.1, 0.2, 0.0], [0.1, 0.2, 0.0], 0.05)
+    sph = Sphere([0.1, 0.2, 0.0], 0.05)
+    sd = capsule_obstacle_distances(a, b, [0.02], [cap, sph]).sd
+    assert sd[0, 0] == pytest.approx(sd[0, 1], abs=1e-12)
+    assert sd[0, 0] == pytest.approx(0.2 - 0.07, abs=1e-12)
+
+
+@pytest.mark.parametrize("bad", [None, "x", 3.0, np.zeros(3)])
+def test_non_obstacle_entries_are_refused(bad):
+    """No uninitialised memory for entries that are not obstacles: a clear error instead."""
+    obs = [Sphere([0, 0, 2], 0.1), bad]
+    with pytest.raises(InvalidParameterError, match=r"obstacles\[1\] must be a Sphere, Box or"):
+        capsule_obstacle_distances(np.zeros((1, 3)), np.ones((1, 3)), [0.05], obs)

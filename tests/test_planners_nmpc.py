@@ -174,3 +174,140 @@ def test_bad_input_raises_value_error(kin):
         NMPCConfig(hessian="newton")
     with pytest.raises(ValueError):
         ArmKinematics(arm7_model(), ("j1", "nope"), "ee")
+
+
+_GOAL = (np.array([0.3, 0.2, 0.8]), np.array([1.0, 0.0, 0.0, 0.0]))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"activation_distance": np.nan}, r"activation_distance must be finite, got nan"),
+        ({"activation_distance": -1.0}, r"activation_distance must be >= 0.0, got -1.0"),
+        ({"joint_limit_margin": np.nan}, r"joint_limit_margin must be finite, got nan"),
+        ({"joint_limit_margin": -0.5}, r"joint_limit_margin must be >= 0.0, got -0.5"),
+        ({"max_iter": np.nan}, r"max_iter must be an integer, got nan"),
+        ({"max_iter": 2.5}, r"max_iter must be an integer, got 2.5"),
+        ({"max_iter": np.inf}, r"max_iter must be an integer, got inf"),
+        ({"max_iter": 0}, r"max_iter must be >= 1, got 0"),
+        ({"ph": 2.5, "ch": 1}, r"ph must be an integer, got 2.5"),
+        ({"ch": 2.5}, r"ch must be an integer, got 2.5"),
+        ({"ph": True, "ch": True}, r"ph must be an integer, got True"),
+        ({"restoration_iters": 2.5}, r"restoration_iters must be an integer, got 2.5"),
+        ({"restoration_iters": -1}, r"restoration_iters must be >= 0, got -1"),
+        ({"time_budget_s": np.nan}, r"time_budget_s must be finite, got nan"),
+        ({"time_budget_s": -1.0}, r"time_budget_s must be > 0, got -1.0"),
+        ({"step_tol": np.nan}, r"step_tol must be finite, got nan"),
+        ({"merit_rtol": -1.0}, r"merit_rtol must be >= 0.0, got -1.0"),
+        ({"restoration_tol": np.nan}, r"restoration_tol must be finite, got nan"),
+        ({"safety_distance": -0.1}, r"safety_distance must be >= 0.0, got -0.1"),
+        ({"ts": 0.0}, r"ts must be > 0, got 0.0"),
+        ({"ts": "0.2"}, r"ts must be a number, got '0.2'"),
+        ({"q_pos": np.nan}, r"q_pos must be finite, got nan"),
+        ({"max_joint_speed": ()}, r"max_joint_speed must be a number or one per joint"),
+        ({"max_joint_speed": np.inf}, r"max_joint_speed must be finite and > 0, got inf"),
+        ({"warm_start": "no"}, r"warm_start must be True or False, got 'no'"),
+    ],
+)
+def test_bad_config_is_refused_at_construction(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        NMPCConfig(**kwargs)
+
+
+def test_config_that_does_not_fit_the_arm_is_refused(kin, kin_limited):
+    with pytest.raises(ValueError, match=r"max_joint_speed must be one number or 7 .* got 2"):
+        NMPCPlanner(kin, NMPCConfig(max_joint_speed=(0.6, 0.6)))
+    # 2 × 5.0 rad > the 5.6 rad range of j1: no configuration keeps the margin.
+    with pytest.raises(ValueError, match=r"joint_limit_margin 5.0 is more than half the range"):
+        NMPCPlanner(kin_limited, NMPCConfig(joint_limit_margin=5.0))
+    NMPCPlanner(kin, NMPCConfig(joint_limit_margin=5.0))  # no limits: any margin fits
+    NMPCPlanner(kin_limited, NMPCConfig(joint_limit_margin=1.4))  # j4's range is 2.9 rad
+    with pytest.raises(ValueError, match=r"kin must be an ArmKinematics"):
+        NMPCPlanner(None)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    ("q0", "goal_pos", "goal_quat", "obstacles", "match"),
+    [
+        (np.full(7, np.nan), *_GOAL, (), r"q0 must be 7 finite numbers"),
+        (None, _GOAL[0], np.zeros(4), (), r"goal quaternion .* not all zero"),
+        (None, _GOAL[0], [np.nan] * 4, (), r"goal quaternion must be 4 finite"),
+        (None, *_GOAL, [Sphere([0, 0, 2], 0.1), "x"], r"obstacles\[1\] must be a Sphere.*'x'"),
+        (None, *_GOAL, Sphere([0, 0, 2], 0.1), r"obstacles must be a sequence of obstacles"),
+    ],
+)
+def test_bad_plan_input_is_refused_and_loses_nothing(
+    kin, q0, goal_pos, goal_quat, obstacles, match
+):
+    """A refused call leaves the warm start alone: the next plan equals an undisturbed one."""
+    cfg = NMPCConfig(ph=6, ch=3, max_iter=3)
+    good = (kin.home(), *_GOAL, [Sphere([0.3, 0.2, 1.0], 0.05)])
+    ref, planner = NMPCPlanner(kin, cfg), NMPCPlanner(kin, cfg)
+    ref.plan(*good)
+    planner.plan(*good)
+    with pytest.raises(ValueError, match=match):
+        planner.plan(kin.home() if q0 is None else q0, goal_pos, goal_quat, obstacles)
+    np.testing.assert_array_equal(planner.plan(*good).U, ref.plan(*good).U)
+
+
+def test_cost_and_constraints_refuses_bad_goal(kin):
+    planner = NMPCPlanner(kin, NMPCConfig(ph=4, ch=2))
+    U = np.zeros(planner.nU)
+    for quat in (np.zeros(4), [np.nan, 0, 0, 1]):
+        with pytest.raises(ValueError, match=r"goal quaternion"):
+            planner.cost_and_constraints(kin.home(), _GOAL[0], quat, [], U)
+    with pytest.raises(ValueError, match=r"U must have shape \(14,\)"):
+        planner.cost_and_constraints(kin.home(), *_GOAL, [], U[:3])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"goal_quat": [np.nan] * 4}, r"goal_quat must be finite"),
+        ({"goal_quat": np.zeros(4)}, r"goal_quat must not be zero"),
+        ({"goal_pos": [0.3, np.nan, 0.8]}, r"goal_pos must be finite"),
+        ({"q0": np.zeros(6)}, r"q0 must have shape \(7,\), got \(6,\)"),
+        ({"ts": 0.0}, r"ts must be > 0, got 0.0"),
+        ({"ts": -0.2}, r"ts must be > 0, got -0.2"),
+        ({"ts": np.nan}, r"ts must be finite, got nan"),
+        ({"ts": 100.0}, r"ts 100.0 differs from the planner's control period 0.2"),
+        ({"max_steps": 2.5}, r"max_steps must be an integer, got 2.5"),
+        ({"pos_tol": np.nan}, r"pos_tol must be finite, got nan"),
+        ({"rot_tol": -1.0}, r"rot_tol must be >= 0.0, got -1.0"),
+    ],
+)
+def test_run_to_goal_refuses_bad_input(kin, kwargs, match):
+    """A NaN or zero goal quaternion no longer counts as reached; ts must be the planner's."""
+    planner = NMPCPlanner(kin, NMPCConfig(ph=4, ch=2, max_iter=2))
+    args = {"q0": kin.home(), "goal_pos": _GOAL[0], "goal_quat": _GOAL[1], "ts": 0.2}
+    args.update({"max_steps": 2, **kwargs})
+    with pytest.raises(ValueError, match=match):
+        run_to_goal(planner, kin, **args)
+    assert planner._U_prev is None  # refused before the planner was called
+
+
+def test_rotation_error_refuses_nan():
+    with pytest.raises(ValueError, match=r"quaternions must be finite"):
+        rotation_error(np.array([1.0, 0, 0, 0]), np.array([np.nan] * 4))
+    assert rotation_error(np.array([1.0, 0, 0, 0]), np.array([0.0, 1, 0, 0])) == pytest.approx(
+        np.pi
+    )
+
+
+def test_kinematics_refuses_bad_configurations_and_loses_nothing():
+    kin = ArmKinematics(arm7_model(), JOINTS, "ee", CAPSULES)
+    q = kin.home()
+    before = kin.forward(q).ee_pos.copy()
+    base = kin.base_qpos.copy()
+    with pytest.raises(ValueError, match=r"base_qpos must have shape \(7,\), got \(3,\)"):
+        kin.set_base_qpos(np.zeros(3))
+    with pytest.raises(ValueError, match=r"base_qpos must be finite"):
+        kin.set_base_qpos(np.full(7, np.nan))
+    np.testing.assert_array_equal(kin.base_qpos, base)
+    np.testing.assert_array_equal(kin.forward(q).ee_pos, before)
+    with pytest.raises(ValueError, match=r"q must have shape \(7,\), got \(\)"):
+        kin.forward(0.5)
+    with pytest.raises(ValueError, match=r"q must have shape \(7,\), got \(3,\)"):
+        kin.full_qpos(np.zeros(3))
+    with pytest.raises(ValueError, match=r"base_qpos must be finite"):
+        ArmKinematics(arm7_model(), JOINTS, "ee", CAPSULES, base_qpos=np.full(7, np.nan))

@@ -34,9 +34,14 @@ def _vec3(name: str, v: object) -> np.ndarray:
 
 
 def _positive(name: str, v: float) -> float:
-    x = float(v)
-    if not np.isfinite(x) or x < 0:
-        raise InvalidParameterError(f"{name} must be finite and >= 0, got {v!r}")
+    if isinstance(v, bool | np.bool_):
+        raise InvalidParameterError(f"{name} must be a number, got {v!r}")
+    try:
+        x = float(v)
+    except (TypeError, ValueError) as exc:
+        raise InvalidParameterError(f"{name} must be a number, got {v!r}") from exc
+    if not np.isfinite(x) or x <= 0:
+        raise InvalidParameterError(f"{name} must be finite and > 0, got {v!r}")
     return x
 
 
@@ -70,9 +75,15 @@ class Box:
         if np.any(h <= 0):
             raise InvalidParameterError(f"box half extents must be > 0, got {h}")
         object.__setattr__(self, "half_extents", h)
-        R = np.asarray(self.rotation, dtype=float).reshape(3, 3)
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
-            raise InvalidParameterError("box rotation must be a rotation matrix")
+        R = np.asarray(self.rotation, dtype=float)
+        if R.size != 9:
+            raise InvalidParameterError(f"box rotation must be 3x3, got shape {R.shape}")
+        R = R.reshape(3, 3)
+        # orthonormal with det +1 (a reflection, det -1, is not a rotation)
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or not np.linalg.det(R) > 0.0:
+            raise InvalidParameterError(
+                f"box rotation must be a rotation matrix (orthonormal, det +1), got {R.tolist()}"
+            )
         object.__setattr__(self, "rotation", R)
 
 
@@ -93,6 +104,25 @@ class Capsule:
 
 
 Obstacle = Sphere | Box | Capsule
+
+_KINDS = (Sphere, Box, Capsule)
+
+
+def check_obstacles(obstacles: object, name: str = "obstacles") -> tuple[Obstacle, ...]:
+    """``obstacles`` as a tuple, raising :class:`InvalidParameterError` that names the first
+    entry that is not a :class:`Sphere`, :class:`Box` or :class:`Capsule`."""
+    if isinstance(obstacles, str | bytes | Sphere | Box | Capsule):
+        raise InvalidParameterError(f"{name} must be a sequence of obstacles, got {obstacles!r}")
+    try:
+        obs = tuple(obstacles)  # type: ignore[arg-type]
+    except TypeError as exc:
+        raise InvalidParameterError(
+            f"{name} must be a sequence of obstacles, got {obstacles!r}"
+        ) from exc
+    for i, ob in enumerate(obs):
+        if not isinstance(ob, _KINDS):
+            raise InvalidParameterError(f"{name}[{i}] must be a Sphere, Box or Capsule, got {ob!r}")
+    return obs
 
 
 def closest_t_point(a: np.ndarray, b: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -275,18 +305,26 @@ def capsule_obstacle_distances(
 
     Returns:
         A :class:`DistanceResult` with arrays of shape (..., K, L[, 3]).
+
+    Raises:
+        InvalidParameterError: an entry of ``obstacles`` is not a Sphere, Box or Capsule.
     """
+    L = len(obstacles)
+    groups = [
+        (kind, [j for j, ob in enumerate(obstacles) if isinstance(ob, kind)])
+        for kind in (Sphere, Capsule, Box)
+    ]
+    if sum(len(idx) for _, idx in groups) != L:  # something else among them: name it
+        check_obstacles(obstacles)
     seg_a = np.asarray(seg_a, dtype=float)
     seg_b = np.asarray(seg_b, dtype=float)
     lead = seg_a.shape[:-1]
     rad = np.broadcast_to(np.asarray(radius, dtype=float), lead)[..., None]  # (..., K, 1)
-    L = len(obstacles)
     sd = np.empty((*lead, L))
     normal = np.empty((*lead, L, 3))
     pr = np.empty((*lead, L, 3))
     po = np.empty((*lead, L, 3))
-    for kind in (Sphere, Capsule, Box):
-        idx = [j for j, ob in enumerate(obstacles) if isinstance(ob, kind)]
+    for kind, idx in groups:
         if not idx:
             continue
         obs = [obstacles[j] for j in idx]

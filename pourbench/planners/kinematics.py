@@ -8,13 +8,14 @@ evaluates them at one configuration or at a batch of configurations (a predicted
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, PourbenchError, UnknownNameError
+from pourbench.errors import InvalidParameterError, PourbenchError, UnknownNameError, check_array
 
 _CAPSULE_TYPES = (int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_CYLINDER))
 _JOINT_TYPES = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
@@ -49,6 +50,23 @@ class ArmState:
     body_pos: np.ndarray
     body_jacp: np.ndarray
     body_jacr: np.ndarray
+
+
+_F64 = np.dtype(np.float64)
+
+
+def check_vector(name: str, value: object, n: int) -> np.ndarray:
+    """``value`` as ``n`` finite floats, like :func:`~pourbench.errors.check_array` but with a
+    fast path for a float64 array of the right shape (OMPL's validity checker calls this for
+    every state it samples)."""
+    if (
+        type(value) is np.ndarray
+        and value.dtype is _F64
+        and value.shape == (n,)
+        and math.isfinite(sum(value.tolist()))  # cheaper than numpy's sum for a few values
+    ):
+        return value
+    return check_array(name, value, (n,))
 
 
 def point_jacobian(
@@ -129,10 +147,7 @@ class ArmKinematics:
         if base_qpos is None:
             key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "home")
             base_qpos = model.key_qpos[key] if key >= 0 else model.qpos0
-        base_qpos = np.asarray(base_qpos, dtype=float)
-        if base_qpos.shape != (model.nq,):
-            raise InvalidParameterError(f"base_qpos must have shape ({model.nq},)")
-        self.base_qpos = base_qpos.copy()
+        self.base_qpos = check_array("base_qpos", base_qpos, (model.nq,)).copy()
         self._jacp = np.zeros((3, model.nv))
         self._jacr = np.zeros((3, model.nv))
         self._quat = np.zeros(4)
@@ -164,18 +179,31 @@ class ArmKinematics:
         return self.base_qpos[self.qadr].copy()
 
     def set_base_qpos(self, qpos: np.ndarray) -> None:
-        """Replace the configuration of the joints that are not planned (full ``qpos``)."""
-        self.base_qpos = np.asarray(qpos, dtype=float).copy()
+        """Replace the configuration of the joints that are not planned (full ``qpos``).
+
+        Raises:
+            InvalidParameterError: ``qpos`` is not ``nq`` finite numbers (nothing changes).
+        """
+        self.base_qpos = check_array("base_qpos", qpos, (self.model.nq,)).copy()
 
     def full_qpos(self, q: np.ndarray) -> np.ndarray:
-        """Full model ``qpos`` with the arm at ``q`` and everything else at ``base_qpos``."""
+        """Full model ``qpos`` with the arm at ``q`` and everything else at ``base_qpos``.
+
+        Raises:
+            InvalidParameterError: ``q`` is not ``n`` finite numbers.
+        """
+        q = check_vector("q", q, self.n)
         qpos = self.base_qpos.copy()
         qpos[self.qadr] = q
         return qpos
 
     def forward(self, q: np.ndarray) -> ArmState:
-        """Kinematics at one configuration ``q`` (n,); arrays keep a leading axis of 1."""
-        return self.forward_many(np.asarray(q, dtype=float)[None, :])
+        """Kinematics at one configuration ``q`` (n,); arrays keep a leading axis of 1.
+
+        Raises:
+            InvalidParameterError: ``q`` is not ``n`` finite numbers.
+        """
+        return self.forward_many(check_array("q", q, (self.n,))[None, :])
 
     def forward_many(self, qs: np.ndarray, jacobians: bool = True) -> ArmState:
         """Kinematics at ``T`` configurations ``qs`` (T, n).
@@ -185,9 +213,14 @@ class ArmKinematics:
         Raises:
             InvalidParameterError: ``qs`` has the wrong shape or is not finite.
         """
-        qs = np.asarray(qs, dtype=float)
+        try:
+            qs = np.asarray(qs, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise InvalidParameterError(f"configurations must be numbers, got {qs!r}") from exc
         if qs.ndim != 2 or qs.shape[1] != self.n:
-            raise InvalidParameterError(f"configurations must have shape (T, {self.n})")
+            raise InvalidParameterError(
+                f"configurations must have shape (T, {self.n}), got {qs.shape}"
+            )
         if not np.all(np.isfinite(qs)):
             raise InvalidParameterError("configurations must be finite")
         m, d = self.model, self.data

@@ -17,7 +17,14 @@ import mink
 import mujoco
 import numpy as np
 
-from pourbench.errors import InvalidParameterError
+from pourbench.errors import (
+    InvalidParameterError,
+    UnknownNameError,
+    check_array,
+    check_finite,
+    check_int,
+    check_positive,
+)
 from pourbench.planners.distance import Obstacle
 from pourbench.planners.rollout import rotation_error
 from pourbench.planners.world import PlanningWorld
@@ -31,6 +38,13 @@ class MinkResult:
     u: np.ndarray
     solve_time_s: float
     iterations: int = 1
+
+
+def _check_names(m: mujoco.MjModel, obj, kind: str, names: Sequence[str], count: int) -> None:
+    for name in names:
+        if not isinstance(name, str) or mujoco.mj_name2id(m, obj, name) < 0:
+            known = [mujoco.mj_id2name(m, obj, i) for i in range(count)]
+            raise UnknownNameError(kind, name, [k for k in known if k])
 
 
 class MinkController:
@@ -48,6 +62,10 @@ class MinkController:
         posture_cost: PostureTask cost (regularises the null space).
         base_qpos: full configuration of the joints that are not planned.
         substeps: IK steps per control period (each ``ts / substeps`` long).
+
+    Raises:
+        UnknownNameError: a joint, the site or a robot geom is not in the world's model.
+        InvalidParameterError: a NaN, negative or wrongly shaped setting.
     """
 
     def __init__(
@@ -66,17 +84,44 @@ class MinkController:
         substeps: int = 4,
     ) -> None:
         m = world.model
+        joints = tuple(joints)
+        robot_geoms = tuple(robot_geoms)
+        if not joints:
+            raise InvalidParameterError("joints must name at least one joint, got none")
+        _check_names(m, mujoco.mjtObj.mjOBJ_JOINT, "joint", joints, m.njnt)
+        _check_names(m, mujoco.mjtObj.mjOBJ_SITE, "site", (ee_site,), m.nsite)
+        _check_names(m, mujoco.mjtObj.mjOBJ_GEOM, "geom", robot_geoms, m.ngeom)
+        check_positive("ts", ts)
+        substeps = check_int("substeps", substeps, minimum=1)
+        check_finite("safety_distance", safety_distance, minimum=0.0)
+        check_finite("orientation_cost", orientation_cost, minimum=0.0)
+        check_finite("posture_cost", posture_cost, minimum=0.0)
+        try:
+            speed_in = np.asarray(max_joint_speed, float)
+        except (TypeError, ValueError) as exc:
+            raise InvalidParameterError(
+                f"max_joint_speed must be numbers, got {max_joint_speed!r}"
+            ) from exc
+        if speed_in.shape not in ((), (len(joints),)):
+            raise InvalidParameterError(
+                f"max_joint_speed must be one number or {len(joints)} (one per joint), "
+                f"got shape {speed_in.shape}"
+            )
+        if not np.all(np.isfinite(speed_in)) or np.any(speed_in <= 0):
+            raise InvalidParameterError(
+                f"max_joint_speed must be finite and > 0, got {max_joint_speed!r}"
+            )
+        base = world.data.qpos if base_qpos is None else base_qpos
+        base = check_array("base_qpos", base, (m.nq,))
         self.world = world
         self.ts = ts
         self.substeps = int(substeps)
         self.safety_distance = safety_distance
         self.config = mink.Configuration(m)
         jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in joints]
-        if min(jids) < 0:
-            raise InvalidParameterError(f"unknown joint in {joints}")
         self.qadr = np.array([m.jnt_qposadr[j] for j in jids])
         self.dadr = np.array([m.jnt_dofadr[j] for j in jids])
-        self.base_qpos = np.array(world.data.qpos if base_qpos is None else base_qpos, float)
+        self.base_qpos = np.array(base, float)
         self.frame = mink.FrameTask(ee_site, "site", position_cost=1.0,
                                     orientation_cost=orientation_cost, lm_damping=1e-3)  # fmt: skip
         self.posture = mink.PostureTask(m, cost=posture_cost)
@@ -99,6 +144,15 @@ class MinkController:
                     collision_detection_distance=safety_distance + 0.3,
                 )
             )
+
+    def _check_goal(self, q0, goal_pos, goal_quat) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        n = len(self.qadr)
+        q0 = check_array("q0", q0, (n,))
+        goal_pos = check_array("goal_pos", goal_pos, (3,))
+        goal_quat = check_array("goal_quat", goal_quat, (4,))
+        if not np.linalg.norm(goal_quat) > 1e-9:
+            raise InvalidParameterError(f"goal_quat must not be zero, got {goal_quat.tolist()}")
+        return q0, goal_pos, goal_quat
 
     def _qpos(self, q: np.ndarray) -> np.ndarray:
         qpos = self.base_qpos.copy()
@@ -136,11 +190,11 @@ class MinkController:
         """One control step: joint velocities (rad/s) to apply for ``ts`` seconds.
 
         Raises:
-            InvalidParameterError: NaN goal.
+            InvalidParameterError: NaN or wrongly shaped ``q0`` or goal, a zero goal
+                quaternion, or obstacles that differ from the world's.
         """
         t0 = time.perf_counter()
-        if not (np.all(np.isfinite(goal_pos)) and np.all(np.isfinite(goal_quat))):
-            raise InvalidParameterError("goal must be finite")
+        q0, goal_pos, goal_quat = self._check_goal(q0, goal_pos, goal_quat)
         self.world.set_obstacles(obstacles)
         # Differential IK is a fast-rate method: integrate ``substeps`` IK steps over the
         # control period and return their mean velocity (so q + u·t_s is where they end).
@@ -171,7 +225,16 @@ class MinkController:
         Returns:
             (q, success): the last configuration (rad) and whether it meets the tolerances and
             keeps the safety distance.
+
+        Raises:
+            InvalidParameterError: NaN or wrongly shaped ``q0`` or goal, a zero goal
+                quaternion, or a bad iteration setting.
         """
+        q0, goal_pos, goal_quat = self._check_goal(q0, goal_pos, goal_quat)
+        check_int("max_iters", max_iters, minimum=1)
+        check_positive("dt", dt)
+        check_finite("pos_tol", pos_tol, minimum=0.0)
+        check_finite("rot_tol", rot_tol, minimum=0.0)
         site = self.frame.frame_name
         q = np.asarray(q0, float).copy()
         for collisions in (False, True):

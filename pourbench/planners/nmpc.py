@@ -35,8 +35,14 @@ from typing import Literal
 import numpy as np
 import qpsolvers
 
-from pourbench.errors import InvalidParameterError
-from pourbench.planners.distance import Obstacle, capsule_obstacle_distances
+from pourbench.errors import (
+    InvalidParameterError,
+    check_array,
+    check_finite,
+    check_int,
+    check_positive,
+)
+from pourbench.planners.distance import Obstacle, capsule_obstacle_distances, check_obstacles
 from pourbench.planners.kinematics import ArmKinematics, point_jacobian
 
 HessianKind = Literal["bfgs", "gauss_newton"]
@@ -96,21 +102,51 @@ class NMPCConfig:
     restoration_tol: float = 1e-4
 
     def __post_init__(self) -> None:
-        for name in ("q_pos", "q_quat", "pf_pos", "pf_quat", "r", "ts", "safety_distance"):
+        floats = (
+            "q_pos", "q_quat", "pf_pos", "pf_quat", "r", "ts", "safety_distance",
+            "step_tol", "merit_rtol", "activation_distance", "joint_limit_margin",
+            "restoration_tol", "time_budget_s",
+        )  # fmt: skip
+        for name in floats:
             v = getattr(self, name)
-            if not np.isfinite(v) or v < 0:
-                raise InvalidParameterError(f"{name} must be finite and >= 0, got {v!r}")
-        if self.r <= 0 or self.ts <= 0:
-            raise InvalidParameterError("r and ts must be > 0")
+            if isinstance(v, str | bytes | bool | np.bool_):
+                raise InvalidParameterError(f"{name} must be a number, got {v!r}")
+        for name in ("q_pos", "q_quat", "pf_pos", "pf_quat", "safety_distance"):
+            check_finite(name, getattr(self, name), minimum=0.0)
+        for name in ("activation_distance", "joint_limit_margin"):
+            check_finite(name, getattr(self, name), minimum=0.0)
+        for name in ("step_tol", "merit_rtol", "restoration_tol"):
+            check_finite(name, getattr(self, name), minimum=0.0)
+        check_positive("r", self.r)
+        check_positive("ts", self.ts)
+        check_int("ph", self.ph, minimum=1)
+        check_int("ch", self.ch, minimum=1)
         if not (1 <= self.ch <= self.ph):
             raise InvalidParameterError(f"need 1 <= ch <= ph, got ch={self.ch}, ph={self.ph}")
-        if self.max_iter < 1:
-            raise InvalidParameterError(f"max_iter must be >= 1, got {self.max_iter}")
+        check_int("max_iter", self.max_iter, minimum=1)
+        check_int("restoration_iters", self.restoration_iters, minimum=0)
+        if self.time_budget_s is not None:
+            check_positive("time_budget_s", self.time_budget_s)
+        if not isinstance(self.warm_start, bool | np.bool_):
+            raise InvalidParameterError(
+                f"warm_start must be True or False, got {self.warm_start!r}"
+            )
         if self.hessian not in HESSIANS:
             raise InvalidParameterError(f"hessian must be one of {HESSIANS}, got {self.hessian!r}")
-        speed = np.asarray(self.max_joint_speed, dtype=float)
+        try:
+            speed = np.asarray(self.max_joint_speed, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise InvalidParameterError(
+                f"max_joint_speed must be numbers, got {self.max_joint_speed!r}"
+            ) from exc
+        if speed.ndim > 1 or speed.size == 0:
+            raise InvalidParameterError(
+                f"max_joint_speed must be a number or one per joint, got {self.max_joint_speed!r}"
+            )
         if not np.all(np.isfinite(speed)) or np.any(speed <= 0):
-            raise InvalidParameterError("max_joint_speed must be finite and > 0")
+            raise InvalidParameterError(
+                f"max_joint_speed must be finite and > 0, got {self.max_joint_speed!r}"
+            )
 
 
 @dataclass
@@ -228,16 +264,41 @@ class NMPCPlanner:
     Args:
         kin: the arm's kinematics (joints, end-effector site, collision capsules).
         config: parameters; Table 4.2 defaults.
+
+    Raises:
+        InvalidParameterError: ``max_joint_speed`` has neither one value nor one per joint, or
+            ``joint_limit_margin`` leaves a limited joint no room (more than half its range).
     """
 
     def __init__(self, kin: ArmKinematics, config: NMPCConfig | None = None) -> None:
-        self.kin = kin
-        self.config = config or NMPCConfig()
-        c = self.config
+        if not isinstance(kin, ArmKinematics):
+            raise InvalidParameterError(f"kin must be an ArmKinematics, got {kin!r}")
+        config = config or NMPCConfig()
+        if not isinstance(config, NMPCConfig):
+            raise InvalidParameterError(f"config must be an NMPCConfig, got {config!r}")
         n = kin.n
+        speed_in = np.asarray(config.max_joint_speed, dtype=float)
+        if speed_in.ndim == 1 and speed_in.shape != (n,):
+            raise InvalidParameterError(
+                f"max_joint_speed must be one number or {n} (one per joint), "
+                f"got {len(speed_in)}: {config.max_joint_speed!r}"
+            )
+        m = config.joint_limit_margin
+        width = kin.upper - kin.lower  # inf for joints without a limit
+        bad = np.flatnonzero(width < 2.0 * m)
+        if bad.size:
+            j = int(bad[0])
+            raise InvalidParameterError(
+                f"joint_limit_margin {m!r} is more than half the range of joint "
+                f"{kin.joint_names[j]!r} ([{kin.lower[j]:g}, {kin.upper[j]:g}] rad): "
+                "no configuration keeps that margin from both limits"
+            )
+        self.kin = kin
+        self.config = config
+        c = self.config
         self.n = n
         self.nU = n * c.ch
-        speed = np.broadcast_to(np.asarray(c.max_joint_speed, dtype=float), (n,)).copy()
+        speed = np.broadcast_to(speed_in, (n,)).copy()
         self.u_max = speed
         self.M = horizon_matrix(c.ph, c.ch)
         self.TsM = c.ts * self.M[1:]  # (ph, ch) rows for q_1..q_ph
@@ -293,21 +354,8 @@ class NMPCPlanner:
         """
         t_start = time.perf_counter()
         c = self.config
-        q0 = np.asarray(q0, dtype=float).reshape(-1)
-        goal_pos = np.asarray(goal_pos, dtype=float).reshape(-1)
-        goal_quat = np.asarray(goal_quat, dtype=float).reshape(-1)
-        if q0.shape != (self.n,) or not np.all(np.isfinite(q0)):
-            raise InvalidParameterError(f"q0 must be {self.n} finite numbers, got {q0}")
-        if goal_pos.shape != (3,) or not np.all(np.isfinite(goal_pos)):
-            raise InvalidParameterError(f"goal position must be 3 finite numbers, got {goal_pos}")
-        qn = np.linalg.norm(goal_quat) if goal_quat.shape == (4,) else np.nan
-        if not np.isfinite(qn) or qn < 1e-9:
-            raise InvalidParameterError(
-                f"goal quaternion must be 4 finite numbers, got {goal_quat}"
-            )
-        prob = _Problem(
-            q0, goal_pos, goal_quat / qn, tuple(obstacles), self.kin.forward(q0).ee_pos[0]
-        )
+        q0, goal_pos, goal_quat, obstacles = self._check_problem(q0, goal_pos, goal_quat, obstacles)
+        prob = _Problem(q0, goal_pos, goal_quat, obstacles, self.kin.forward(q0).ee_pos[0])
         lo, hi = self._limit_bounds(q0)
 
         if c.warm_start and self._U_prev is not None:
@@ -335,6 +383,25 @@ class NMPCPlanner:
             solve_time_s=time.perf_counter() - t_start,
             status=status,
         )
+
+    def _check_problem(self, q0, goal_pos, goal_quat, obstacles):
+        """Validated (q0, goal_pos, unit goal_quat, obstacles) of one problem."""
+        try:
+            q0 = np.asarray(q0, dtype=float).reshape(-1)
+            goal_pos = np.asarray(goal_pos, dtype=float).reshape(-1)
+            goal_quat = np.asarray(goal_quat, dtype=float).reshape(-1)
+        except (TypeError, ValueError) as exc:
+            raise InvalidParameterError(f"q0 and the goal must be numbers: {exc}") from exc
+        if q0.shape != (self.n,) or not np.all(np.isfinite(q0)):
+            raise InvalidParameterError(f"q0 must be {self.n} finite numbers, got {q0}")
+        if goal_pos.shape != (3,) or not np.all(np.isfinite(goal_pos)):
+            raise InvalidParameterError(f"goal position must be 3 finite numbers, got {goal_pos}")
+        qn = np.linalg.norm(goal_quat) if goal_quat.shape == (4,) else np.nan
+        if not np.isfinite(qn) or qn < 1e-9:
+            raise InvalidParameterError(
+                f"goal quaternion must be 4 finite numbers, not all zero, got {goal_quat}"
+            )
+        return q0, goal_pos, goal_quat / qn, check_obstacles(obstacles)
 
     # ----------------------------------------------------- evaluation (f, ∇f, g, ∇g)
     def _limit_bounds(self, q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -425,18 +492,16 @@ class NMPCPlanner:
         U: np.ndarray,
     ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
         """f(U), ∇f(U), the signed distances sd(U) (flattened over steps 1…ph, capsules,
-        obstacles; m) and their Jacobian ∂sd/∂U. For tests and diagnostics."""
-        gq = np.asarray(goal_quat, dtype=float)
-        q0 = np.asarray(q0, dtype=float)
-        prob = _Problem(
-            q0,
-            np.asarray(goal_pos, float),
-            gq / np.linalg.norm(gq),
-            obstacles,
-            self.kin.forward(q0).ee_pos[0],
-        )
+        obstacles; m) and their Jacobian ∂sd/∂U. For tests and diagnostics.
+
+        Raises:
+            InvalidParameterError: as :meth:`plan`, or ``U`` is not ``ch·n`` finite numbers.
+        """
+        q0, goal_pos, goal_quat, obstacles = self._check_problem(q0, goal_pos, goal_quat, obstacles)
+        U = check_array("U", U, (self.nU,))
+        prob = _Problem(q0, goal_pos, goal_quat, obstacles, self.kin.forward(q0).ee_pos[0])
         lo, hi = self._limit_bounds(prob.q0)
-        ev = self._evaluate(prob, np.asarray(U, dtype=float), lo, hi)
+        ev = self._evaluate(prob, U, lo, hi)
         return ev.f, ev.grad, ev.sd, ev.dsd
 
     # ------------------------------------------------------------------- QP solve

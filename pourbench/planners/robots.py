@@ -75,7 +75,7 @@ def arm_spec(name: str) -> ArmSpec:
     Raises:
         UnknownNameError: ``name`` is not in :data:`ARMS` (a ``ValueError``).
     """
-    if name not in ARMS:
+    if not isinstance(name, str) or name not in ARMS:
         raise UnknownNameError("robot", name, ARMS)
     return ARMS[name]
 

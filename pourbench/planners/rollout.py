@@ -12,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
+from pourbench.errors import InvalidParameterError, check_array, check_finite, check_int
 from pourbench.planners.distance import Obstacle
 from pourbench.planners.kinematics import ArmKinematics
 
@@ -24,8 +25,17 @@ class OnlinePlanner(Protocol):
 
 
 def rotation_error(quat: np.ndarray, goal_quat: np.ndarray) -> float:
-    """Angle (rad) of the rotation between two unit quaternions (w, x, y, z)."""
+    """Angle (rad) of the rotation between two unit quaternions (w, x, y, z).
+
+    Raises:
+        InvalidParameterError: a quaternion holds NaN or inf (it would read as no error).
+    """
     c = abs(float(np.dot(quat, goal_quat)))
+    if not c <= 1e300:  # NaN (or inf): an unknown rotation, never "reached"
+        raise InvalidParameterError(
+            f"quaternions must be finite, got {np.asarray(quat).tolist()} and "
+            f"{np.asarray(goal_quat).tolist()}"
+        )
     return 2.0 * float(np.arccos(min(1.0, c)))
 
 
@@ -91,9 +101,27 @@ def run_to_goal(
 
     Returns:
         A :class:`Rollout`; an unreachable goal gives ``success=False``, not an exception.
+
+    Raises:
+        InvalidParameterError: ``q0``, the goal, ``ts``, ``max_steps`` or a tolerance is bad
+            (NaN, wrong shape, zero quaternion, ``ts`` ≤ 0 or not the planner's own period).
     """
-    q = np.asarray(q0, dtype=float).copy()
-    goal_quat = np.asarray(goal_quat, dtype=float) / np.linalg.norm(goal_quat)
+    q = check_array("q0", q0, (kin.n,)).copy()
+    goal_pos = check_array("goal_pos", goal_pos, (3,))
+    goal_quat = check_array("goal_quat", goal_quat, (4,))
+    qnorm = np.linalg.norm(goal_quat)
+    if not qnorm > 1e-9:
+        raise InvalidParameterError(f"goal_quat must not be zero, got {goal_quat.tolist()}")
+    ts = check_finite("ts", ts)
+    if ts <= 0:
+        raise InvalidParameterError(f"ts must be > 0, got {ts!r}")
+    own = getattr(getattr(planner, "config", None), "ts", getattr(planner, "ts", None))
+    if isinstance(own, int | float) and not np.isclose(ts, own, rtol=1e-9, atol=0.0):
+        raise InvalidParameterError(f"ts {ts!r} differs from the planner's control period {own!r}")
+    check_int("max_steps", max_steps, minimum=0)
+    check_finite("pos_tol", pos_tol, minimum=0.0)
+    check_finite("rot_tol", rot_tol, minimum=0.0)
+    goal_quat = goal_quat / qnorm
     qs, ee, quats, us, times, iters = [q.copy()], [], [], [], [], []
     p, xi = kin.ee_pose(q)
     ee.append(p)

@@ -13,8 +13,9 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, UnknownNameError
-from pourbench.planners.distance import Box, Obstacle, Sphere
+from pourbench.errors import InvalidParameterError, UnknownNameError, check_array, check_positive
+from pourbench.planners.distance import Box, Obstacle, Sphere, check_obstacles
+from pourbench.planners.kinematics import check_vector
 
 COLLISION_BIT = 1 << 4
 """contype/conaffinity bit given to planner geoms in the world copy (for mink's pair filter;
@@ -24,7 +25,10 @@ the world model is only used for kinematics and distance queries, never stepped)
 def _quat_z_to(axis: np.ndarray) -> np.ndarray:
     """Unit quaternion (w, x, y, z) rotating +z onto ``axis``."""
     z = np.array([0.0, 0.0, 1.0])
-    a = axis / np.linalg.norm(axis)
+    norm = np.linalg.norm(axis)
+    if norm == 0.0:  # a point (a capsule with a == b): any orientation
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    a = axis / norm
     c = float(z @ a)
     if c < -1.0 + 1e-12:
         return np.array([0.0, 1.0, 0.0, 0.0])
@@ -55,8 +59,12 @@ class PlanningWorld:
         base_qpos: full configuration for joints not being changed (default: keyframe
             ``home`` or ``qpos0``).
 
+    A capsule obstacle with ``a == b`` is a sphere and is added as a sphere geom.
+
     Raises:
         UnknownNameError: a geom name is missing from the robot.
+        InvalidParameterError: an obstacle is not a Sphere, Box or Capsule, or ``base_qpos``
+            is not ``nq`` finite numbers.
     """
 
     def __init__(
@@ -67,6 +75,9 @@ class PlanningWorld:
         static_geoms: Sequence[str] = (),
         base_qpos: np.ndarray | None = None,
     ) -> None:
+        if not isinstance(spec, mujoco.MjSpec):
+            raise InvalidParameterError(f"spec must be a mujoco.MjSpec, got {type(spec).__name__}")
+        obstacles = check_obstacles(obstacles)
         names = {g.name for g in spec.geoms}
         for g in (*robot_geoms, *static_geoms):
             if g not in names:
@@ -86,6 +97,8 @@ class PlanningWorld:
             else:
                 half = 0.5 * float(np.linalg.norm(ob.b - ob.a))
                 gtype, size = mujoco.mjtGeom.mjGEOM_CAPSULE, [ob.radius, half, 0]
+                if half == 0.0:  # a == b: MuJoCo needs a positive half-length; it is a sphere
+                    gtype, size = mujoco.mjtGeom.mjGEOM_SPHERE, [ob.radius, 0, 0]
             body.add_geom(
                 name=f"obstacle_{i}",
                 type=gtype,
@@ -110,7 +123,7 @@ class PlanningWorld:
         if base_qpos is None:
             key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
             base_qpos = m.key_qpos[key] if key >= 0 else m.qpos0
-        self.data.qpos[:] = base_qpos
+        self.data.qpos[:] = check_array("base_qpos", base_qpos, (m.nq,))
         self.set_obstacles(obstacles)
         self._fromto = np.zeros(6)
 
@@ -123,27 +136,45 @@ class PlanningWorld:
         """Move the obstacle bodies to the poses of ``obstacles`` (same count and kinds).
 
         Raises:
-            InvalidParameterError: the count or a kind differs from construction.
+            InvalidParameterError: the count or a kind differs from construction (no obstacle
+                is moved then).
         """
+        obstacles = check_obstacles(obstacles)
         if len(obstacles) != len(self.mocap_ids):
             raise InvalidParameterError(
                 f"world has {len(self.mocap_ids)} obstacles, got {len(obstacles)}"
             )
         for i, ob in enumerate(obstacles):
             if not isinstance(ob, self._kinds[i]):
-                raise InvalidParameterError(f"obstacle {i} must stay a {self._kinds[i].__name__}")
+                raise InvalidParameterError(
+                    f"obstacles[{i}] must stay a {self._kinds[i].__name__}, got {ob!r}"
+                )
+        for i, ob in enumerate(obstacles):
             pos, quat = _pose(ob)
             self.data.mocap_pos[self.mocap_ids[i]] = pos
             self.data.mocap_quat[self.mocap_ids[i]] = quat
 
     def set_qpos(self, qpos: np.ndarray) -> None:
-        """Set the full configuration and update kinematics."""
-        self.data.qpos[:] = qpos
+        """Set the full configuration and update kinematics.
+
+        Raises:
+            InvalidParameterError: ``qpos`` is not ``nq`` finite numbers (nothing changes).
+        """
+        self.data.qpos[:] = check_array("qpos", qpos, (self.model.nq,))
         mujoco.mj_kinematics(self.model, self.data)
 
     def clearance(self, qpos: np.ndarray | None = None, distmax: float = 1.0) -> float:
         """Smallest signed distance (m) between the arm's geoms and every obstacle geom,
-        by ``mj_geomDistance``; ``distmax`` when nothing is closer, ``inf`` with no obstacle."""
+        by ``mj_geomDistance``; ``distmax`` when nothing is closer, ``inf`` with no obstacle.
+
+        Raises:
+            InvalidParameterError: ``qpos`` is not ``nq`` finite numbers, or ``distmax`` is
+                not finite and > 0 (nothing changes).
+        """
+        if qpos is not None:
+            qpos = check_vector("qpos", qpos, self.model.nq)
+        if distmax != 1.0:  # the default needs no check (this runs in OMPL's inner loop)
+            check_positive("distmax", distmax)
         if not self.obstacle_geoms or not self.robot_geom_ids:
             return float("inf")
         if qpos is not None:

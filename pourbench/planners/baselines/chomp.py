@@ -16,8 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.planners.baselines.common import OfflinePlan, path_min_distance
-from pourbench.planners.distance import Obstacle, capsule_obstacle_distances
+from pourbench.errors import check_finite, check_int, check_positive
+from pourbench.planners.baselines.common import OfflinePlan, check_endpoints, path_min_distance
+from pourbench.planners.distance import Obstacle, capsule_obstacle_distances, check_obstacles
 from pourbench.planners.kinematics import ArmKinematics, point_jacobian
 
 
@@ -41,6 +42,14 @@ class ChompConfig:
     epsilon: float = 0.05
     max_step: float = 0.1
 
+    def __post_init__(self) -> None:
+        check_int("waypoints", self.waypoints, minimum=3)
+        check_int("max_iters", self.max_iters, minimum=1)
+        check_positive("eta", self.eta)
+        check_finite("obstacle_weight", self.obstacle_weight, minimum=0.0)
+        check_positive("epsilon", self.epsilon)
+        check_positive("max_step", self.max_step)
+
 
 def plan_chomp(
     kin: ArmKinematics,
@@ -54,11 +63,15 @@ def plan_chomp(
     """Optimise a joint path from ``q_start`` to ``q_goal`` (rad) around ``obstacles``.
 
     Success = the path (checked at 0.01 rad steps) keeps ``safety_distance``.
+
+    Raises:
+        InvalidParameterError: ``q_start``/``q_goal`` not ``kin.n`` finite numbers, a NaN or
+            negative ``safety_distance``, or an entry of ``obstacles`` that is not one.
     """
     c = config or ChompConfig()
     t0 = time.perf_counter()
-    q_start = np.asarray(q_start, float)
-    q_goal = np.asarray(q_goal, float)
+    q_start, q_goal, safety_distance = check_endpoints(kin, q_start, q_goal, safety_distance)
+    obstacles = check_obstacles(obstacles)
     T = c.waypoints - 2
     K = np.zeros((T + 1, T))
     for i in range(T):

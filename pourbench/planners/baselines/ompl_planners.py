@@ -12,8 +12,8 @@ import time
 
 import numpy as np
 
-from pourbench.errors import UnknownNameError
-from pourbench.planners.baselines.common import OfflinePlan
+from pourbench.errors import InvalidParameterError, UnknownNameError, check_int, check_positive
+from pourbench.planners.baselines.common import OfflinePlan, check_endpoints
 from pourbench.planners.kinematics import ArmKinematics
 from pourbench.planners.world import PlanningWorld
 
@@ -50,14 +50,23 @@ def plan_ompl(
 
     Raises:
         UnknownNameError: unknown planner name.
+        InvalidParameterError: ``q_start``/``q_goal`` not ``kin.n`` finite numbers, a NaN or
+            negative ``safety_distance``, ``time_limit`` or ``span`` not finite and > 0,
+            ``resolution`` not in (0, 1), or a negative ``seed``.
     """
+    if planner not in OMPL_PLANNERS:
+        raise UnknownNameError("planner", planner, OMPL_PLANNERS)
+    check_endpoints(kin, q_start, q_goal, safety_distance)
+    check_positive("time_limit", time_limit)
+    check_positive("span", span)
+    if not check_positive("resolution", resolution) < 1.0:  # OMPL wants a fraction in (0, 1)
+        raise InvalidParameterError(f"resolution must be in (0, 1), got {resolution!r}")
+    check_int("seed", seed, minimum=0)
     from ompl import base as ob
     from ompl import geometric as og
     from ompl import util as ou
 
     classes = {"rrtconnect": og.RRTConnect, "rrt": og.RRT, "prmstar": og.PRMstar}
-    if planner not in classes:
-        raise UnknownNameError("planner", planner, OMPL_PLANNERS)
     ou.setLogLevel(ou.LOG_ERROR)
     global _SEEDED
     if not _SEEDED:  # OMPL takes one seed per process (and rejects 0)

@@ -17,12 +17,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pourbench.errors import check_finite, check_int
 from pourbench.planners.baselines.common import (
     OfflinePlan,
+    check_endpoints,
     path_min_distance,
     second_difference_matrix,
 )
-from pourbench.planners.distance import Obstacle, capsule_obstacle_distances
+from pourbench.planners.distance import Obstacle, capsule_obstacle_distances, check_obstacles
 from pourbench.planners.kinematics import ArmKinematics
 
 
@@ -48,6 +50,13 @@ class StompConfig:
     margin: float = 0.03
     smooth_weight: float = 1e-3
 
+    def __post_init__(self) -> None:
+        check_int("waypoints", self.waypoints, minimum=3)
+        check_int("rollouts", self.rollouts, minimum=1)
+        check_int("max_iters", self.max_iters, minimum=1)
+        for name in ("noise_std", "h", "margin", "smooth_weight"):
+            check_finite(name, getattr(self, name), minimum=0.0)
+
 
 def _waypoint_costs(kin, obstacles, Q, threshold) -> tuple[np.ndarray, float]:
     """Obstacle hinge cost per waypoint, and the smallest signed distance (m)."""
@@ -69,12 +78,18 @@ def plan_stomp(
     """Optimise a joint path from ``q_start`` to ``q_goal`` (rad) around ``obstacles``.
 
     Success = the path (checked at 0.01 rad steps) keeps ``safety_distance``.
+
+    Raises:
+        InvalidParameterError: ``q_start``/``q_goal`` not ``kin.n`` finite numbers, a NaN or
+            negative ``safety_distance``, an entry of ``obstacles`` that is not one, or a
+            ``seed`` that is not an integer >= 0.
     """
     c = config or StompConfig()
+    q_start, q_goal, safety_distance = check_endpoints(kin, q_start, q_goal, safety_distance)
+    obstacles = check_obstacles(obstacles)
+    check_int("seed", seed, minimum=0)
     rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
-    q_start = np.asarray(q_start, float)
-    q_goal = np.asarray(q_goal, float)
     T = c.waypoints - 2
     A = second_difference_matrix(T)
     R = A.T @ A
