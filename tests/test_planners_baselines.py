@@ -265,6 +265,13 @@ def test_world_obstacles():
     with pytest.raises(ValueError, match=r"obstacles\[1\] must stay a Box"):
         world.set_obstacles([moved, Sphere(pt, 0.05)])
     np.testing.assert_array_equal(world.data.mocap_pos, before)
+    # a new size would be ignored by the compiled geom (the clearance of the old one)
+    bigger = Box(_BOX.center, 2.0 * np.asarray(_BOX.half_extents))
+    with pytest.raises(ValueError, match=r"obstacles\[1\] must keep its size"):
+        world.set_obstacles([moved, bigger])
+    np.testing.assert_array_equal(world.data.mocap_pos, before)
+    world.set_obstacles([moved, _BOX])  # same sizes, a new pose: taken
+    np.testing.assert_allclose(world.data.mocap_pos[world.mocap_ids[0]], [0.0, 0.0, 2.0])
 
 
 _ENDPOINT_CASES = [

@@ -22,6 +22,18 @@ COLLISION_BIT = 1 << 4
 the world model is only used for kinematics and distance queries, never stepped)."""
 
 
+def _geom(ob: Obstacle) -> tuple[mujoco.mjtGeom, list[float]]:
+    """MuJoCo geom type and size of an obstacle (a capsule with a == b is a sphere)."""
+    if isinstance(ob, Sphere):
+        return mujoco.mjtGeom.mjGEOM_SPHERE, [ob.radius, 0.0, 0.0]
+    if isinstance(ob, Box):
+        return mujoco.mjtGeom.mjGEOM_BOX, [float(h) for h in ob.half_extents]
+    half = 0.5 * float(np.linalg.norm(ob.b - ob.a))
+    if half == 0.0:  # MuJoCo needs a positive half-length
+        return mujoco.mjtGeom.mjGEOM_SPHERE, [ob.radius, 0.0, 0.0]
+    return mujoco.mjtGeom.mjGEOM_CAPSULE, [ob.radius, half, 0.0]
+
+
 def _quat_z_to(axis: np.ndarray) -> np.ndarray:
     """Unit quaternion (w, x, y, z) rotating +z onto ``axis``."""
     z = np.array([0.0, 0.0, 1.0])
@@ -90,15 +102,7 @@ class PlanningWorld:
         for i, ob in enumerate(obstacles):
             pos, quat = _pose(ob)
             body = spec.worldbody.add_body(name=f"obstacle_{i}", mocap=True, pos=pos, quat=quat)
-            if isinstance(ob, Sphere):
-                gtype, size = mujoco.mjtGeom.mjGEOM_SPHERE, [ob.radius, 0, 0]
-            elif isinstance(ob, Box):
-                gtype, size = mujoco.mjtGeom.mjGEOM_BOX, list(ob.half_extents)
-            else:
-                half = 0.5 * float(np.linalg.norm(ob.b - ob.a))
-                gtype, size = mujoco.mjtGeom.mjGEOM_CAPSULE, [ob.radius, half, 0]
-                if half == 0.0:  # a == b: MuJoCo needs a positive half-length; it is a sphere
-                    gtype, size = mujoco.mjtGeom.mjGEOM_SPHERE, [ob.radius, 0, 0]
+            gtype, size = _geom(ob)
             body.add_geom(
                 name=f"obstacle_{i}",
                 type=gtype,
@@ -124,7 +128,7 @@ class PlanningWorld:
             key = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_KEY, "home")
             base_qpos = m.key_qpos[key] if key >= 0 else m.qpos0
         self.data.qpos[:] = check_array("base_qpos", base_qpos, (m.nq,))
-        self.set_obstacles(obstacles)
+        self._place(obstacles)
         self._fromto = np.zeros(6)
 
     @property
@@ -136,8 +140,8 @@ class PlanningWorld:
         """Move the obstacle bodies to the poses of ``obstacles`` (same count and kinds).
 
         Raises:
-            InvalidParameterError: the count or a kind differs from construction (no obstacle
-                is moved then).
+            InvalidParameterError: the count, a kind or a size differs from construction (no
+                obstacle is moved then).
         """
         obstacles = check_obstacles(obstacles)
         if len(obstacles) != len(self.mocap_ids):
@@ -149,6 +153,15 @@ class PlanningWorld:
                 raise InvalidParameterError(
                     f"obstacles[{i}] must stay a {self._kinds[i].__name__}, got {ob!r}"
                 )
+            size = self.model.geom_size[self.obstacle_geom_ids[i]]
+            if not np.allclose(_geom(ob)[1], size, rtol=1e-9, atol=1e-12):
+                raise InvalidParameterError(
+                    f"obstacles[{i}] must keep its size (MuJoCo geom size {size.tolist()}); "
+                    f"got {ob!r}: build a new PlanningWorld for other sizes"
+                )
+        self._place(obstacles)
+
+    def _place(self, obstacles: Sequence[Obstacle]) -> None:
         for i, ob in enumerate(obstacles):
             pos, quat = _pose(ob)
             self.data.mocap_pos[self.mocap_ids[i]] = pos
