@@ -45,6 +45,16 @@ def test_rigid_recovers_rotation_translation_scale_with_10pct_outliers(dim: int)
     np.testing.assert_allclose(res.transform(Y), res.points, atol=1e-12)
 
 
+def test_rigid_and_affine_transforms_refuse_other_points() -> None:
+    rng = np.random.default_rng(3)
+    Y = rng.uniform(-0.3, 0.3, size=(40, 2))
+    for res in (register_rigid(Y + 0.1, Y), register_affine(Y + 0.1, Y)):
+        with pytest.raises(InvalidParameterError, match="pts has 3 dims, expected 2"):
+            res.transform(np.zeros((4, 3)))  # used to fail in numpy's matmul
+        with pytest.raises(InvalidParameterError, match="pts contains NaN"):
+            res.transform(np.full((4, 2), np.nan))  # used to return NaN
+
+
 def test_rigid_without_scale_keeps_unit_scale() -> None:
     rng = np.random.default_rng(8)
     Y = rng.uniform(-0.3, 0.3, size=(100, 2))

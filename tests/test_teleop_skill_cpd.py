@@ -204,6 +204,7 @@ _RNG = np.random.default_rng
         (lambda: task_outage(_RNG(0), 10.0, after_fraction=0.9, latest_fraction=0.1), "after"),
         (lambda: task_outage(_RNG(0), 10.0, min_duration=8.0, max_duration=1.0), "max_dur"),
         (lambda: DeadlineDetector().packet(np.nan), "t must be finite"),
+        (lambda: NetworkModel([(2.0, 1.0)]), r"outages\[0\] must be an Outage"),
         (lambda: SkillCPDConfig(cpd_w=1.5), "cpd_w"),
         (lambda: SkillCPDConfig(beta=0), "beta must be > 0"),
         (lambda: SkillCPDConfig(lmbda=-1), "lmbda must be > 0"),

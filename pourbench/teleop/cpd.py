@@ -312,8 +312,8 @@ class RigidResult:
     iterations: int
 
     def transform(self, pts: np.ndarray) -> np.ndarray:
-        """Apply the transform to other (K, D) points."""
-        return self.s * np.asarray(pts, dtype=float) @ self.R.T + self.t
+        """Apply the transform to other (K, D) points (finite, the registration's D)."""
+        return self.s * _check_points("pts", pts, self.R.shape[0]) @ self.R.T + self.t
 
 
 @dataclass(frozen=True)
@@ -335,8 +335,8 @@ class AffineResult:
     iterations: int
 
     def transform(self, pts: np.ndarray) -> np.ndarray:
-        """Apply the transform to other (K, D) points."""
-        return np.asarray(pts, dtype=float) @ self.B.T + self.t
+        """Apply the transform to other (K, D) points (finite, the registration's D)."""
+        return _check_points("pts", pts, self.B.shape[0]) @ self.B.T + self.t
 
 
 @dataclass(frozen=True)

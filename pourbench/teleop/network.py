@@ -43,6 +43,9 @@ class NetworkModel:
         if self.dt <= 0:
             raise InvalidParameterError(f"dt must be > 0, got {dt}")
         self.outages = tuple(outages)
+        for i, o in enumerate(self.outages):
+            if not isinstance(o, Outage):
+                raise InvalidParameterError(f"outages[{i}] must be an Outage, got {o!r}")
 
     def delivered(self, t: float) -> bool:
         """Whether the packet sent at time ``t`` (s) arrives."""
