@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import itertools
 import math
-import tomllib
+import numbers
 from dataclasses import dataclass
 from functools import cache
 from importlib import resources
@@ -29,7 +29,14 @@ import mujoco
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from pourbench.errors import ProfileFileError, UnknownNameError
+from pourbench.errors import (
+    InvalidParameterError,
+    ProfileFileError,
+    UnknownNameError,
+    check_array,
+    check_finite,
+    read_toml,
+)
 from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell, bottle, bowl, cup, tray
 
 ROLES: tuple[str, ...] = ("training", "novel", "receiving")
@@ -48,6 +55,23 @@ CONTAINER_CONAFFINITY = 5
 
 DEFAULT_MAX_ERROR = 2.0e-4
 """Largest distance (m) between the MuJoCo pieces' surface and the SDF's zero level set."""
+
+MIN_MAX_ERROR = 1.0e-5
+"""Smallest accepted ``max_error``, m: the finest mesh a shipped container gets at it (the
+bowl, 1728 pieces) builds and compiles in about 1.5 s; 1e-6 took 15 s, 1e-9 several minutes."""
+
+MAX_WALL_PIECES = 2048
+"""Most convex pieces one container body may have (about 2 s to build and compile)."""
+MAX_WALL_VERTICES = 150_000
+"""Most mesh vertices, over all pieces, one container body may have (about 2 s)."""
+MAX_ARC_STEPS = 64
+"""Most chords on the rounded rim of one wall segment: more makes Qhull fail on the pieces."""
+
+MIN_WALL = 1.0e-4
+"""Thinnest accepted wall, m (0.1 mm; the shipped walls are 1.5 to 6 mm): Qhull cannot hull
+the pieces of a much thinner one."""
+MAX_SIZE = 2.0
+"""Largest accepted outer diameter and rim height of a container file's entry, m."""
 
 DEFAULT_PATH = Path(str(resources.files("pourbench") / "assets" / "containers.toml"))
 
@@ -129,7 +153,7 @@ class Container:
             max_error: bound on the distance between the pieces' surface and the SDF's zero
                 level set, m.
         """
-        return wall_pieces(self.shape, max_error)
+        return _wall_pieces(self.shape, max_error, f"container {self.name!r}")
 
 
 def _outer_radius_max(shape: ContainerShape) -> float:
@@ -161,15 +185,62 @@ def _stadium(a: np.ndarray, b: np.ndarray, h: float, steps: int) -> np.ndarray:
     return poly
 
 
+def _check_max_error(max_error: object) -> float:
+    if isinstance(max_error, bool) or not isinstance(max_error, numbers.Real):
+        raise InvalidParameterError(f"max_error must be a number (m), got {max_error!r}")
+    return check_finite("max_error", max_error, minimum=MIN_MAX_ERROR)
+
+
+def _wall_plan(shape: ContainerShape, max_error: object, who: str) -> tuple[int, int]:
+    """(sectors, arc steps) of ``shape``'s wall pieces, after checking ``max_error`` and that
+    the pieces stay within :data:`MAX_WALL_PIECES`, :data:`MAX_ARC_STEPS` and
+    :data:`MAX_WALL_VERTICES` (a finer mesh takes minutes; raise ``max_error`` instead)."""
+    max_error = _check_max_error(max_error)
+    if not isinstance(shape, BoxShell | RevolvedShell):
+        raise InvalidParameterError(f"{who}: shape must be a container shape, got {shape!r}")
+    wall = float(shape.wall)
+    if not wall >= MIN_WALL:
+        raise InvalidParameterError(f"{who}: wall {wall!r} m is thinner than {MIN_WALL} m")
+    if isinstance(shape, BoxShell):
+        return 0, 0
+    h = wall / 2
+    rho_max = float(shape.points[:, 0].max()) + h
+    if not math.isfinite(rho_max):
+        raise InvalidParameterError(f"{who}: outer radius {rho_max!r} is not finite")
+    sectors = max(8, _arc_steps(rho_max, max_error / 2, 2 * math.pi))
+    arc_steps = max(2, _arc_steps(h, max_error / 2, math.pi))
+    pieces = sectors * (len(shape.points) - 1)
+    verts = pieces * 4 * (arc_steps + 1)
+    for what, n, limit in (
+        ("wall pieces", pieces, MAX_WALL_PIECES),
+        ("chords on a rim arc", arc_steps, MAX_ARC_STEPS),
+        ("mesh vertices", verts, MAX_WALL_VERTICES),
+    ):
+        if n > limit:
+            raise InvalidParameterError(
+                f"{who} at max_error={max_error!r} needs {n} {what} (limit {limit}); "
+                "raise max_error or shrink the container"
+            )
+    return sectors, arc_steps
+
+
 def wall_pieces(shape: ContainerShape, max_error: float = DEFAULT_MAX_ERROR) -> list[np.ndarray]:
-    """Convex pieces (each an (n, 3) vertex array, m) whose union is ``shape``'s wall."""
+    """Convex pieces (each an (n, 3) vertex array, m) whose union is ``shape``'s wall.
+
+    Raises:
+        InvalidParameterError: ``max_error`` not a finite number >= :data:`MIN_MAX_ERROR`, a
+            wall thinner than :data:`MIN_WALL`, or more pieces than :data:`MAX_WALL_PIECES`
+            (or vertices than :data:`MAX_WALL_VERTICES`).
+    """
+    return _wall_pieces(shape, max_error, "container shape")
+
+
+def _wall_pieces(shape: ContainerShape, max_error: object, who: str) -> list[np.ndarray]:
+    sectors, arc_steps = _wall_plan(shape, max_error, who)
     if isinstance(shape, BoxShell):
         return _box_pieces(shape)
     h = shape.wall / 2
     pts = shape.points
-    rho_max = float(pts[:, 0].max()) + h
-    sectors = max(8, _arc_steps(rho_max, max_error / 2, 2 * math.pi))
-    arc_steps = max(2, _arc_steps(h, max_error / 2, math.pi))
     k = 2.0 / (1.0 + math.cos(math.pi / sectors))  # straddle the sector chords
     phi = np.linspace(0.0, 2 * math.pi, sectors + 1)
     pieces = []
@@ -195,51 +266,98 @@ def _box_pieces(shape: BoxShell) -> list[np.ndarray]:
     return [np.asarray(c) + corners * np.asarray(s) for c, s in boxes]
 
 
-def _build(name: str, entry: dict, path: Path) -> Container:
+def _is_number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _build(name: str, entry: object, path: Path) -> Container:
+    where = f"container.{name}"
+    if not name:
+        raise ProfileFileError(path, where, "a container needs a non-empty name")
+    if not isinstance(entry, dict):
+        raise ProfileFileError(path, where, f"must be a table, got {entry!r}")
+
     def key(k: str) -> object:
         if k not in entry:
-            raise ProfileFileError(path, f"container.{name}.{k}", "missing")
+            raise ProfileFileError(path, f"{where}.{k}", "missing")
         return entry[k]
 
+    def number(k: str) -> float:
+        v = key(k)
+        if not _is_number(v) or not math.isfinite(v):
+            raise ProfileFileError(path, f"{where}.{k}", f"must be a finite number, got {v!r}")
+        return float(v)
+
     kind = key("kind")
-    if kind not in KINDS:
-        raise ProfileFileError(path, f"container.{name}.kind", f"{kind!r} not one of {list(KINDS)}")
+    if not isinstance(kind, str) or kind not in KINDS:
+        raise ProfileFileError(path, f"{where}.kind", f"{kind!r} not one of {list(KINDS)}")
     role = key("role")
-    if role not in ROLES:
-        raise ProfileFileError(path, f"container.{name}.role", f"{role!r} not one of {ROLES}")
+    if not isinstance(role, str) or role not in ROLES:
+        raise ProfileFileError(path, f"{where}.role", f"{role!r} not one of {ROLES}")
     unknown = set(entry) - set(_COMMON) - set(KINDS[kind])
     if unknown:
-        raise ProfileFileError(path, f"container.{name}", f"unknown keys {sorted(unknown)}")
-    args = {k: key(k) for k in KINDS[kind]}
+        raise ProfileFileError(path, where, f"unknown keys {sorted(unknown)}")
+    args: dict[str, object] = {k: number(k) for k in KINDS[kind] if k != "points"}
+    if args["wall"] < MIN_WALL:
+        raise ProfileFileError(
+            path, f"{where}.wall", f"must be >= {MIN_WALL} m, got {args['wall']!r}"
+        )
+    if kind == "profile":
+        pts = key("points")
+        if not isinstance(pts, list) or not all(
+            isinstance(p, list) and len(p) == 2 and all(_is_number(x) for x in p) for p in pts
+        ):
+            raise ProfileFileError(
+                path, f"{where}.points", f"must be a list of [rho, z] numbers, got {pts!r}"
+            )
+        args["points"] = pts
     try:
         if kind == "profile":
             shape = RevolvedShell(tuple(tuple(map(float, p)) for p in args["points"]), args["wall"])
         else:
             shape = {"cup": cup, "bowl": bowl, "bottle": bottle, "tray": tray}[kind](**args)
-    except (TypeError, ValueError) as exc:
-        raise ProfileFileError(path, f"container.{name}", str(exc)) from exc
-    mass, grasp = float(key("mass")), float(key("grasp_height"))
-    if not (mass > 0 and math.isfinite(mass)):
-        raise ProfileFileError(path, f"container.{name}.mass", f"must be > 0, got {mass!r}")
-    if not (0 <= grasp <= shape.rim_height):
+        size = (2.0 * _outer_radius_max(shape), shape.rim_height)
+    except (TypeError, ValueError, ArithmeticError) as exc:
+        raise ProfileFileError(path, where, str(exc)) from exc
+    if not all(math.isfinite(x) and x <= MAX_SIZE for x in size):
         raise ProfileFileError(
-            path, f"container.{name}.grasp_height", f"must be in [0, {shape.rim_height}]"
+            path,
+            where,
+            f"outer diameter {size[0]!r} m and rim height {size[1]!r} m must be <= {MAX_SIZE} m",
         )
-    rgba = tuple(float(c) for c in key("rgba"))
-    if len(rgba) != 4:
-        raise ProfileFileError(path, f"container.{name}.rgba", "needs 4 numbers")
-    return Container(name, role, kind, shape, mass, grasp, rgba, str(key("description")))
+    mass, grasp = number("mass"), number("grasp_height")
+    if not mass > 0:
+        raise ProfileFileError(path, f"{where}.mass", f"must be > 0, got {mass!r}")
+    if not (0 <= grasp <= shape.rim_height):
+        raise ProfileFileError(path, f"{where}.grasp_height", f"must be in [0, {shape.rim_height}]")
+    rgba = key("rgba")
+    if not (
+        isinstance(rgba, list)
+        and len(rgba) == 4
+        and all(_is_number(c) and 0.0 <= c <= 1.0 for c in rgba)
+    ):
+        raise ProfileFileError(path, f"{where}.rgba", f"needs 4 numbers in [0, 1], got {rgba!r}")
+    description = key("description")
+    if not isinstance(description, str):
+        raise ProfileFileError(
+            path, f"{where}.description", f"must be a string, got {description!r}"
+        )
+    rgba = tuple(float(c) for c in rgba)
+    return Container(name, role, kind, shape, mass, grasp, rgba, description)
 
 
 def load_containers(path: str | Path | None = None) -> dict[str, Container]:
     """Read a container file (default: the shipped ``assets/containers.toml``).
 
+    Every length is in m; walls must be at least :data:`MIN_WALL` thick, outer diameters and
+    rim heights at most :data:`MAX_SIZE`, ``rgba`` 4 numbers in [0, 1].
+
     Raises:
-        ProfileFileError: a malformed entry, naming the file and key.
+        ProfileFileError: an unreadable file, invalid TOML, or a malformed entry, naming the
+            file and key.
     """
     path = Path(path) if path is not None else DEFAULT_PATH
-    with open(path, "rb") as f:
-        data = tomllib.load(f)
+    data = read_toml(path)
     table = data.get("container")
     if not isinstance(table, dict) or not table:
         raise ProfileFileError(path, "container", "no [container.<name>] tables")
@@ -299,12 +417,57 @@ def add_container_body(
 
     Returns:
         The new body.
+
+    Raises:
+        UnknownNameError: ``container`` names no shipped container.
+        InvalidParameterError: anything else malformed: ``pos`` not 3 finite numbers, ``quat``
+            not a finite unit quaternion (within 1e-3, as :func:`~pourbench.errors.check_poses`
+            asks), ``max_error`` not finite or below :data:`MIN_MAX_ERROR`, a mesh over
+            :data:`MAX_WALL_PIECES` pieces, a name already in ``spec``, a mocap body under
+            another body than the world. Nothing is added to ``spec`` then.
     """
-    c = get_container(container) if isinstance(container, str) else container
+    if isinstance(container, str):
+        c = get_container(container)
+    elif isinstance(container, Container):
+        c = container
+    else:
+        raise InvalidParameterError(
+            f"container must be a Container or a container name, got {container!r}"
+        )
+    if name is not None and not isinstance(name, str):
+        raise InvalidParameterError(f"name must be a string, got {name!r}")
     name = name or c.name
-    body = parent.add_body(name=name, pos=list(pos), quat=list(quat), mocap=mocap)
-    pieces = c.wall_pieces(max_error)
+    if not isinstance(spec, mujoco.MjSpec):
+        raise InvalidParameterError(f"spec must be a mujoco.MjSpec, got {spec!r}")
+    if not isinstance(parent, mujoco.MjsBody):
+        raise InvalidParameterError(f"parent must be a body of spec, got {parent!r}")
+    if mocap and parent != spec.worldbody:
+        raise InvalidParameterError(f"mocap body {name!r}: parent must be spec.worldbody")
+    pos_arr = check_array("pos", pos, (3,))
+    quat_arr = check_array("quat", quat, (4,))
+    norm = float(np.linalg.norm(quat_arr))
+    if not 1.0 - 1e-3 <= norm <= 1.0 + 1e-3:
+        raise InvalidParameterError(
+            f"quat must be a unit quaternion (w, x, y, z), got {quat!r} of norm {norm:.6g}"
+        )
+    taken = [
+        n
+        for n, found in (
+            (name, spec.body(name)),
+            (f"{name}_wall_0", spec.mesh(f"{name}_wall_0")),
+            (f"{name}_wall_0", spec.geom(f"{name}_wall_0")),
+            (f"{name}_mount", spec.site(f"{name}_mount")),
+            (f"{name}_rim", spec.site(f"{name}_rim")),
+        )
+        if found is not None
+    ]
+    if taken:
+        raise InvalidParameterError(f"name {name!r}: {taken[0]!r} is already in the spec")
+    pieces = _wall_pieces(c.shape, max_error, f"container {c.name!r}")
     volumes = np.array([ConvexHull(p).volume for p in pieces])
+    body = parent.add_body(
+        name=name, pos=pos_arr.tolist(), quat=quat_arr.tolist(), mocap=bool(mocap)
+    )
     for i, (verts, vol) in enumerate(zip(pieces, volumes, strict=True)):
         mesh = spec.add_mesh(name=f"{name}_wall_{i}")
         mesh.uservert = verts.ravel().tolist()

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import numbers
+import os
+import tomllib
 from collections.abc import Iterable
+from pathlib import Path
 
 import numpy as np
 
@@ -33,6 +36,17 @@ class ProfileFileError(PourbenchError):
         self.path = str(path)
         self.key = key
         super().__init__(f"{self.path}: key {key!r}: {problem}")
+
+
+def read_toml(path: str | os.PathLike[str]) -> dict:
+    """The TOML document at ``path``; a :class:`ProfileFileError` naming the file when it
+    cannot be read (missing, a folder, not UTF-8) or is not valid TOML."""
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ProfileFileError(path, "<file>", f"invalid TOML: {exc}") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ProfileFileError(path, "<file>", f"cannot read: {exc}") from exc
 
 
 class CapacityError(PourbenchError):

@@ -8,7 +8,7 @@ carry gravity compensation, so the robot stands still at ``home`` with zero cont
 
 from __future__ import annotations
 
-import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
@@ -25,7 +25,7 @@ from pourbench.containers import (
     container_names,
     get_container,
 )
-from pourbench.errors import InvalidParameterError, UnknownNameError
+from pourbench.errors import InvalidParameterError, UnknownNameError, check_array, check_positive
 
 ROBOTS: tuple[str, ...] = ("movo", "panda")
 """Names accepted by :func:`load_robot` and :func:`robot_spec`."""
@@ -338,6 +338,51 @@ _OBSTACLE_TYPES = {
     "box": mujoco.mjtGeom.mjGEOM_BOX,
     "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
 }
+_OBSTACLE_SIZES = {"sphere": 1, "box": 3, "capsule": 2}  # sizes a kind needs (of MuJoCo's 3)
+
+
+def _is_real(v: object) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+
+def _check_pos_quat(
+    what: str, pos: object, quat: object | None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """``pos`` as 3 finite numbers, ``quat`` (unless None) as a finite unit quaternion (within
+    1e-3, as :func:`~pourbench.errors.check_poses` asks)."""
+    p = check_array(f"{what}pos", pos, (3,))
+    if quat is None:
+        return p, None
+    q = check_array(f"{what}quat", quat, (4,))
+    norm = float(np.linalg.norm(q))
+    if not 1.0 - 1e-3 <= norm <= 1.0 + 1e-3:
+        raise InvalidParameterError(
+            f"{what}quat must be a unit quaternion (w, x, y, z), got {quat!r} of norm {norm:.6g}"
+        )
+    return p, q
+
+
+def _check_obstacle(i: int, ob: object) -> tuple[np.ndarray, np.ndarray]:
+    if not isinstance(ob, ObstacleGeom):
+        raise InvalidParameterError(f"obstacle {i} must be an ObstacleGeom, got {ob!r}")
+    if not isinstance(ob.kind, str) or ob.kind not in _OBSTACLE_TYPES:
+        raise InvalidParameterError(
+            f"obstacle {i}: kind {ob.kind!r} not one of {sorted(_OBSTACLE_TYPES)}"
+        )
+    need = _OBSTACLE_SIZES[ob.kind]
+    if (
+        not isinstance(ob.size, Sequence)
+        or isinstance(ob.size, str)
+        or not need <= len(ob.size) <= 3
+        or not all(_is_real(v) for v in ob.size)
+    ):
+        raise InvalidParameterError(
+            f"obstacle {i}: size of a {ob.kind} must be "
+            f"{'3' if need == 3 else f'{need} to 3'} numbers, got {ob.size!r}"
+        )
+    if not all(np.isfinite(float(v)) and v > 0 for v in ob.size):
+        raise InvalidParameterError(f"obstacle {i}: sizes must be > 0, got {ob.size!r}")
+    return _check_pos_quat(f"obstacle {i}: ", ob.pos, ob.quat)
 
 
 def build_planning_scene(
@@ -355,19 +400,20 @@ def build_planning_scene(
 
     Raises:
         UnknownNameError: unknown robot.
-        InvalidParameterError: an obstacle of unknown kind or with a non-positive size.
+        InvalidParameterError: ``obstacles`` not a list of :class:`ObstacleGeom`, or one of
+            unknown kind, with sizes not 1 (sphere), 2 (capsule) or 3 (box) to 3 positive
+            numbers, a non-finite position or a quaternion that is not unit length.
     """
+    if isinstance(obstacles, ObstacleGeom | str | dict) or not isinstance(obstacles, Sequence):
+        raise InvalidParameterError(
+            f"obstacles must be a list of ObstacleGeom, got {type(obstacles).__name__}"
+        )
+    poses = [_check_obstacle(i, ob) for i, ob in enumerate(obstacles)]
     spec = _robot_at_table(robot) if table else robot_spec(robot)
     spec.modelname = f"{robot}_planning"
-    for i, ob in enumerate(obstacles):
-        if ob.kind not in _OBSTACLE_TYPES:
-            raise InvalidParameterError(
-                f"obstacle {i}: kind {ob.kind!r} not one of {sorted(_OBSTACLE_TYPES)}"
-            )
-        if not ob.size or not all(math.isfinite(s) and s > 0 for s in ob.size):
-            raise InvalidParameterError(f"obstacle {i}: sizes must be > 0, got {ob.size!r}")
+    for i, (ob, (pos, quat)) in enumerate(zip(obstacles, poses, strict=True)):
         body = spec.worldbody.add_body(
-            name=f"obstacle_{i}", pos=list(ob.pos), quat=list(ob.quat), mocap=True
+            name=f"obstacle_{i}", pos=pos.tolist(), quat=quat.tolist(), mocap=True
         )
         body.add_geom(
             name=f"obstacle_{i}",
@@ -391,14 +437,17 @@ def set_obstacle_pose(
 
     Raises:
         UnknownNameError: no mocap body called ``name``.
+        InvalidParameterError: ``pos`` not 3 finite numbers, ``quat`` not a finite unit
+            quaternion (within 1e-3); nothing is moved then.
     """
     mocap = [model.body(b).name for b in range(model.nbody) if model.body_mocapid[b] >= 0]
-    if name not in mocap:
+    if not isinstance(name, str) or name not in mocap:
         raise UnknownNameError("mocap body", name, mocap)
+    p, q = _check_pos_quat("", pos, quat)
     mid = model.body_mocapid[model.body(name).id]
-    data.mocap_pos[mid] = pos
-    if quat is not None:
-        data.mocap_quat[mid] = quat
+    data.mocap_pos[mid] = p
+    if q is not None:
+        data.mocap_quat[mid] = q
 
 
 def body_clearance(
@@ -416,12 +465,24 @@ def body_clearance(
     ``cutoff`` are skipped; the result is ``cutoff`` when nothing is closer.
 
     Raises:
-        UnknownNameError: a body name is not in the model.
+        UnknownNameError: a body name is not in the model (or not a string).
+        InvalidParameterError: ``body1 == body2``, ``cutoff`` not a finite number > 0, or
+            ``data`` not made for ``model``.
     """
-    ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) for n in (body1, body2)]
+    if not _is_real(cutoff):
+        raise InvalidParameterError(f"cutoff must be a number (m), got {cutoff!r}")
+    cutoff = check_positive("cutoff", cutoff)
+    if data.geom_xpos.shape[0] != model.ngeom or data.qpos.size != model.nq:
+        raise InvalidParameterError("data does not belong to model (geom or qpos counts differ)")
+    ids = [
+        mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, n) if isinstance(n, str) else -1
+        for n in (body1, body2)
+    ]
     for n, i in zip((body1, body2), ids, strict=True):
         if i < 0:
             raise UnknownNameError("body", n, [model.body(b).name for b in range(model.nbody)])
+    if ids[0] == ids[1]:
+        raise InvalidParameterError(f"body1 and body2 are the same body {body1!r}")
     geoms = [np.flatnonzero(model.geom_bodyid == b) for b in ids]
     if len(geoms[0]) == 0 or len(geoms[1]) == 0:
         return cutoff

@@ -15,7 +15,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from pourbench.errors import PourbenchError
+from pourbench.errors import InvalidParameterError, PourbenchError, check_index
 from pourbench.outputs import AtomicOutput
 
 _RINGS, _SEGMENTS = 8, 16
@@ -92,7 +92,12 @@ def _box(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def geom_mesh(model: mujoco.MjModel, g: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """Vertices (in the geom frame, m) and triangles of geom ``g``; None for unsupported types."""
+    """Vertices (in the geom frame, m) and triangles of geom ``g``; None for unsupported types.
+
+    Raises:
+        InvalidParameterError: ``g`` is not an index in ``[0, model.ngeom)``.
+    """
+    g = check_index("geom index g", g, model.ngeom)
     t, size = model.geom_type[g], model.geom_size[g]
     if t == mujoco.mjtGeom.mjGEOM_MESH:
         m = model.geom_dataid[g]
@@ -113,10 +118,41 @@ def geom_mesh(model: mujoco.MjModel, g: int) -> tuple[np.ndarray, np.ndarray] | 
     return None
 
 
+def _check_data(model: mujoco.MjModel, data: mujoco.MjData, *, finite: bool = False) -> None:
+    """Refuse ``data`` of another model (its arrays would be read out of bounds) and, with
+    ``finite``, geom poses that are not finite."""
+    if not isinstance(model, mujoco.MjModel) or not isinstance(data, mujoco.MjData):
+        raise InvalidParameterError(
+            f"need a mujoco.MjModel and its mujoco.MjData, got {type(model).__name__} and "
+            f"{type(data).__name__}"
+        )
+    if (
+        data.qpos.size != model.nq
+        or data.geom_xpos.shape[0] != model.ngeom
+        or data.xpos.shape[0] != model.nbody
+    ):
+        raise InvalidParameterError(
+            f"data does not belong to model: it has {data.qpos.size} qpos, "
+            f"{data.geom_xpos.shape[0]} geoms and {data.xpos.shape[0]} bodies, the model "
+            f"{model.nq}, {model.ngeom} and {model.nbody}"
+        )
+    if finite and not (np.isfinite(data.geom_xpos).all() and np.isfinite(data.geom_xmat).all()):
+        raise InvalidParameterError("data has non-finite geom poses (NaN qpos?); nothing recorded")
+
+
 def world_meshes(
     model: mujoco.MjModel, data: mujoco.MjData, groups: Sequence[int] = (0, 1, 2)
 ) -> Iterator[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
-    """(entity path, world vertices, triangles, rgba) of every geom in ``groups``."""
+    """(entity path, world vertices, triangles, rgba) of every geom in ``groups``.
+
+    Raises:
+        InvalidParameterError: ``data`` was not made for ``model``, or ``groups`` not integers.
+    """
+    _check_data(model, data)
+    if not isinstance(groups, Sequence) or not all(
+        isinstance(x, int | np.integer) and not isinstance(x, bool) for x in groups
+    ):
+        raise InvalidParameterError(f"groups must be a sequence of integers, got {groups!r}")
     for g in range(model.ngeom):
         if model.geom_group[g] not in groups:
             continue
@@ -134,7 +170,13 @@ def world_meshes(
 
 
 def record(model: mujoco.MjModel, data: mujoco.MjData, path: str | Path) -> Path:
-    """Write the scene's geoms at ``data``'s pose to a rerun recording at ``path``."""
+    """Write the scene's geoms at ``data``'s pose to a rerun recording at ``path``.
+
+    Raises:
+        InvalidParameterError: ``data`` was not made for ``model``, or its geom poses are not
+            finite; nothing is written then.
+    """
+    _check_data(model, data, finite=True)
     import rerun as rr
 
     out = AtomicOutput(path)

@@ -150,3 +150,134 @@ def test_malformed_file_names_the_key(tmp_path) -> None:
     f.write_text(f.read_text().replace('kind = "cup"', 'kind = "vase"').replace("-1.0", "1.0"))
     with pytest.raises(ProfileFileError, match="vase"):
         load_containers(f)
+
+
+_GOOD = (
+    '[container.x]\nrole = "novel"\nkind = "cup"\nradius = 0.03\ndepth = 0.05\nwall = 0.003\n'
+    'mass = 1.0\ngrasp_height = 0.02\nrgba = [1, 1, 1, 1]\ndescription = ""\n'
+)
+_PROFILE = 'kind = "profile"\npoints = [[0, 0], [0.03, 0], [0.03, 0.05]]\n'
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "match"),
+    [
+        ("rgba = [1, 1, 1, 1]", "rgba = [nan, 1, 1, 1]", r"container\.x\.rgba"),
+        ("rgba = [1, 1, 1, 1]", "rgba = [2, -1, 1, 1]", r"container\.x\.rgba.*\[0, 1\]"),
+        ("rgba = [1, 1, 1, 1]", "rgba = 1", r"container\.x\.rgba"),
+        ("rgba = [1, 1, 1, 1]", 'rgba = ["a", 1, 1, 1]', r"container\.x\.rgba"),
+        ("rgba = [1, 1, 1, 1]", "rgba = [1, 1, 1]", r"container\.x\.rgba"),
+        ("mass = 1.0", "mass = true", r"container\.x\.mass.*True"),
+        ("mass = 1.0", 'mass = "abc"', r"container\.x\.mass.*'abc'"),
+        ("mass = 1.0", "mass = inf", r"container\.x\.mass"),
+        ("radius = 0.03", "radius = true", r"container\.x\.radius.*True"),
+        ("radius = 0.03", "radius = nan", r"container\.x\.radius"),
+        ("radius = 0.03", "radius = 1e300", r"container\.x'.*<= 2\.0 m"),
+        ("radius = 0.03", "radius = 1e4", r"container\.x'.*<= 2\.0 m"),
+        ("wall = 0.003", "wall = 1e-300", r"container\.x\.wall.*>= 0\.0001"),
+        ("grasp_height = 0.02", 'grasp_height = "a"', r"container\.x\.grasp_height"),
+        ("grasp_height = 0.02", "grasp_height = nan", r"container\.x\.grasp_height"),
+        ('description = ""', "description = [1]", r"container\.x\.description"),
+        ('kind = "cup"', 'kind = ["cup"]', r"container\.x\.kind"),
+        ('role = "novel"', 'role = ["novel"]', r"container\.x\.role"),
+        ("[container.x]", '[container.""]', r"non-empty name"),
+        (_GOOD, "[container]\nx = 3\n", r"container\.x'.*must be a table"),
+        (_GOOD, "container = 3\n", r"'container'"),
+        (_GOOD, "[container.x\nrole =", r"c\.toml.*invalid TOML"),
+        (
+            'kind = "cup"\nradius = 0.03\ndepth = 0.05\n',
+            _PROFILE.replace("0.05]", "true]"),
+            "points",
+        ),
+        ('kind = "cup"\nradius = 0.03\ndepth = 0.05\n', 'kind = "profile"\npoints = 3\n', "points"),
+    ],
+)
+def test_malformed_entry_names_file_and_key(tmp_path, old: str, new: str, match: str) -> None:
+    f = tmp_path / "c.toml"
+    assert old in _GOOD
+    f.write_text(_GOOD.replace(old, new))
+    with pytest.raises(ProfileFileError, match=match) as info:
+        load_containers(f)
+    assert str(f) in str(info.value)
+
+
+def test_good_custom_file_still_loads(tmp_path) -> None:
+    f = tmp_path / "c.toml"
+    f.write_text(
+        _GOOD
+        + _GOOD.replace("[container.x]", "[container.y]").replace(
+            'kind = "cup"\nradius = 0.03\ndepth = 0.05\n', _PROFILE
+        )
+    )
+    got = load_containers(f)
+    assert got["x"].rgba == (1.0, 1.0, 1.0, 1.0) and got["x"].mass == 1.0
+    assert got["y"].rim_height == pytest.approx(0.05)
+
+
+def test_unreadable_file_is_a_profile_error(tmp_path) -> None:
+    for path in (tmp_path / "missing.toml", tmp_path):
+        with pytest.raises(ProfileFileError, match="cannot read") as info:
+            load_containers(path)
+        assert str(path) in str(info.value)
+
+
+_NAN = float("nan")
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"max_error": 0}, r"max_error must be >= 1e-05"),
+        ({"max_error": -1e-3}, r"max_error must be >= 1e-05"),
+        ({"max_error": 1e-9}, r"max_error must be >= 1e-05"),
+        ({"max_error": _NAN}, r"max_error must be finite"),
+        ({"max_error": float("inf")}, r"max_error must be finite"),
+        ({"max_error": "0.001"}, r"max_error must be a number"),
+        ({"max_error": True}, r"max_error must be a number"),
+        ({"pos": (_NAN, 0, 0)}, r"pos must be finite"),
+        ({"pos": (0, 0)}, r"pos must have shape \(3,\)"),
+        ({"pos": None}, r"pos must have shape"),
+        ({"quat": (0, 0, 0, 0)}, r"quat must be a unit quaternion"),
+        ({"quat": (2, 0, 0, 0)}, r"quat must be a unit quaternion"),
+        ({"quat": (_NAN, 0, 0, 0)}, r"quat must be finite"),
+        ({"container": 5}, r"container must be a Container or a container name"),
+        ({"container": None}, r"container must be a Container or a container name"),
+        ({"container": "teapot"}, r"unknown container 'teapot'"),
+        ({"name": 5}, r"name must be a string"),
+        ({"mocap": True, "parent": "body"}, r"mocap body 'a': parent must be spec\.worldbody"),
+        ({"name": "taken"}, r"'taken' is already in the spec"),
+    ],
+)
+def test_refused_add_container_body_leaves_spec_unchanged(kwargs: dict, match: str) -> None:
+    spec = mujoco.MjSpec()
+    other = spec.worldbody.add_body(name="taken")
+    args = {"container": "cup_small", "name": "a", "parent": spec.worldbody} | kwargs
+    if args["parent"] == "body":
+        args["parent"] = other
+    container, parent = args.pop("container"), args.pop("parent")
+    with pytest.raises(ValueError, match=match):
+        add_container_body(spec, parent, container, **args)
+    assert spec.body("a") is None and spec.mesh("a_wall_0") is None
+    add_container_body(spec, spec.worldbody, "cup_small", name="a")  # the name is still free
+    model = spec.compile()
+    assert model.nbody == 3 and model.body("a").mass[0] == pytest.approx(0.08)
+
+
+def test_mesh_size_is_capped_before_building() -> None:
+    import dataclasses
+
+    from pourbench.fluids.shapes import cup
+
+    huge = dataclasses.replace(get_container("cup_small"), name="huge", shape=cup(1e4, 0.05))
+    with pytest.raises(ValueError, match=r"container 'huge' at max_error=0\.0002 needs \d+ wall"):
+        huge.wall_pieces()
+    spec = mujoco.MjSpec()
+    with pytest.raises(ValueError, match=r"'huge'.*limit 2048"):
+        add_container_body(spec, spec.worldbody, huge)
+    assert spec.body("huge") is None
+    thick = dataclasses.replace(huge, name="thick", shape=cup(1.0, 0.5, 1.0))
+    with pytest.raises(ValueError, match=r"'thick' at max_error=1e-05 needs \d+ chords"):
+        thick.wall_pieces(1e-5)
+    with pytest.raises(ValueError, match="max_error must be >= 1e-05"):
+        get_container("bowl").wall_pieces(1e-6)
+    assert len(get_container("bowl").wall_pieces(2e-4)) == 387  # the default mesh as before

@@ -219,7 +219,7 @@ GOOD_RANGES = {
         ({"adhesion": None}, "lesson 0: adhesion must be [low, high]"),
         ({"fraction": None}, "lesson 0: fraction must be a number >= 0"),
         ({"fraction": '"half"'}, "lesson 0: fraction must be a number >= 0"),
-        ({"density": "[900.0, 1100.0"}, "not a valid TOML file"),
+        ({"density": "[900.0, 1100.0"}, "invalid TOML"),
     ],
 )
 def test_bad_curriculum_file_names_the_file_lesson_and_key(tmp_path, change, words) -> None:
@@ -242,7 +242,7 @@ def test_bad_curriculum_file_names_the_file_lesson_and_key(tmp_path, change, wor
 
 def test_a_missing_or_unreadable_curriculum_file_is_named(tmp_path) -> None:
     for path in (tmp_path / "absent.toml", tmp_path):
-        with pytest.raises(ValueError, match="cannot read the curriculum file") as exc:
+        with pytest.raises(ValueError, match="cannot read") as exc:
             load_curriculum(path)
         assert str(path) in str(exc.value)
     latin = tmp_path / "latin1.toml"

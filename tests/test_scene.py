@@ -184,3 +184,103 @@ def test_view_records_every_visible_geom(tmp_path, capsys) -> None:
     assert out.stat().st_size > 10_000
     assert main(["view", "scene", "--robot", "none", "--pouring", "kettle", "--out", str(out)]) == 2
     assert "known containers" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def mocap_scene():
+    scene = build_pour_scene("cup_small", "tray")
+    return scene.model, scene.make_data()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"body1": None}, r"unknown body None; known bodys: pouring, receiving"),
+        ({"body1": 5}, r"unknown body 5"),
+        ({"body2": "pourng"}, r"unknown body 'pourng'"),
+        ({"body1": "pouring", "body2": "pouring"}, r"same body 'pouring'"),
+        ({"cutoff": float("nan")}, r"cutoff must be finite"),
+        ({"cutoff": -1.0}, r"cutoff must be > 0"),
+        ({"cutoff": 0.0}, r"cutoff must be > 0"),
+        ({"cutoff": float("inf")}, r"cutoff must be finite"),
+        ({"cutoff": "x"}, r"cutoff must be a number"),
+    ],
+)
+def test_body_clearance_refuses_bad_input(mocap_scene, kwargs: dict, match: str) -> None:
+    model, data = mocap_scene
+    with pytest.raises(ValueError, match=match):
+        body_clearance(model, data, **kwargs)  # None once crashed the process
+    other = mujoco.MjData(mujoco.MjModel.from_xml_string("<mujoco/>"))
+    with pytest.raises(ValueError, match="data does not belong to model"):
+        body_clearance(model, other)
+    assert body_clearance(model, data, cutoff=0.05) > 0.04
+
+
+_N = float("nan")
+
+
+@pytest.mark.parametrize(
+    ("obstacles", "match"),
+    [
+        ([ObstacleGeom("sphere", (0.1,), (_N, 0, 0.5))], r"obstacle 0: pos must be finite"),
+        ([ObstacleGeom("sphere", (0.1,), (0, 0.5))], r"obstacle 0: pos must have shape"),
+        ([ObstacleGeom("sphere", (0.1,), (0, 0, 0.5), (0, 0, 0, 0))], r"obstacle 0: quat must"),
+        ([ObstacleGeom("box", (0.1,) * 3, (0, 0, 0.5), (_N, 0, 0, 0))], r"quat must be finite"),
+        ([ObstacleGeom("sphere", ("0.1",), (0, 0, 0.5))], r"size of a sphere must be 1 to 3"),
+        ([ObstacleGeom("sphere", 0.1, (0, 0, 0.5))], r"size of a sphere"),
+        ([ObstacleGeom("sphere", (True,), (0, 0, 0.5))], r"size of a sphere"),
+        ([ObstacleGeom("box", (0.1,), (0, 0, 0.5))], r"size of a box must be 3 numbers"),
+        ([ObstacleGeom("sphere", (-0.1,), (0, 0, 0.5))], r"sizes must be > 0"),
+        ([ObstacleGeom(["box"], (0.1,) * 3, (0, 0, 0.5))], r"kind \['box'\] not one of"),
+        (ObstacleGeom("sphere", (0.1,), (0, 0, 0.5)), r"obstacles must be a list"),
+        ([{"kind": "sphere"}], r"obstacle 0 must be an ObstacleGeom"),
+    ],
+)
+def test_planning_scene_refuses_bad_obstacles(obstacles, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        build_planning_scene("panda", obstacles)
+
+
+@pytest.mark.parametrize(
+    ("pos", "quat", "match"),
+    [
+        ((_N, 0, 0), None, r"pos must be finite"),
+        ((0, 0), None, r"pos must have shape \(3,\)"),
+        ((0, 0, 0), (0, 0, 0, 0), r"quat must be a unit quaternion"),
+        ((0, 0, 0), (_N, 0, 0, 0), r"quat must be finite"),
+        ((0, 0, 0), (1, 0, 0), r"quat must have shape \(4,\)"),
+    ],
+)
+def test_set_obstacle_pose_refuses_bad_poses(pos, quat, match: str) -> None:
+    model = build_planning_scene("panda", [ObstacleGeom("sphere", (0.1,), (0.5, 0, 0.5))])
+    data = mujoco.MjData(model)
+    before = data.mocap_pos.copy(), data.mocap_quat.copy()
+    with pytest.raises(ValueError, match=match):
+        set_obstacle_pose(model, data, "obstacle_0", pos, quat)
+    np.testing.assert_array_equal(data.mocap_pos, before[0])  # nothing moved
+    np.testing.assert_array_equal(data.mocap_quat, before[1])
+    with pytest.raises(UnknownNameError, match="obstacle_0"):
+        set_obstacle_pose(model, data, None, (0, 0, 0))
+
+
+def test_view_refuses_bad_indices_and_foreign_data(mocap_scene, tmp_path) -> None:
+    from pourbench.view import geom_mesh, record, world_meshes
+
+    model, data = mocap_scene
+    for g in (-1, model.ngeom, 1.5):
+        with pytest.raises(ValueError, match="geom index g"):
+            geom_mesh(model, g)
+    assert geom_mesh(model, model.ngeom - 1) is not None
+    with pytest.raises(ValueError, match="groups must be"):
+        list(world_meshes(model, data, 5))
+    old = tmp_path / "old.rrd"
+    old.write_text("OLD")
+    other = mujoco.MjData(mujoco.MjModel.from_xml_string("<mujoco><worldbody/></mujoco>"))
+    with pytest.raises(ValueError, match="data does not belong to model"):
+        record(model, other, old)
+    bad = mujoco.MjData(model)
+    bad.mocap_pos[:] = np.nan
+    mujoco.mj_kinematics(model, bad)
+    with pytest.raises(ValueError, match="non-finite geom poses"):
+        record(model, bad, old)
+    assert old.read_text() == "OLD" and list(tmp_path.iterdir()) == [old]

@@ -8,14 +8,13 @@ surface tension and viscosity, plus the share of training steps it takes. The de
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from pourbench.errors import check_finite
+from pourbench.errors import check_finite, read_toml
 from pourbench.fluids import LiquidProfile, liquid_profile
 
 DEFAULT_CURRICULUM = Path(str(resources.files("pourbench") / "assets" / "curriculum.toml"))
@@ -54,13 +53,7 @@ def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
             fractions are not ≥ 0 and do not sum to 1.
     """
     path = Path(path) if path is not None else DEFAULT_CURRICULUM
-    try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: not a valid TOML file: {exc}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: cannot read the curriculum file: {exc}") from None
+    data = read_toml(path)
     lessons = []
     for i, entry in enumerate(data.get("lesson", [])):
         ranges = {}

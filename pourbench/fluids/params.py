@@ -9,13 +9,12 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
-import tomllib
 from dataclasses import dataclass
 from functools import cache
 from importlib import resources
 from pathlib import Path
 
-from pourbench.errors import InvalidParameterError, ProfileFileError, UnknownNameError
+from pourbench.errors import InvalidParameterError, ProfileFileError, UnknownNameError, read_toml
 
 # FleX parameter name -> LiquidProfile attribute.
 FLEX_NAMES: dict[str, str] = {
@@ -129,12 +128,7 @@ def load_liquids(path: str | Path | None = None) -> dict[str, LiquidProfile]:
             non-numeric key; the message names the file and key.
     """
     path = Path(path) if path is not None else default_liquids_path()
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ProfileFileError(path, "<file>", f"invalid TOML: {exc}") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ProfileFileError(path, "<file>", f"cannot read: {exc}") from exc
+    doc = read_toml(path)
     defaults = doc.get("defaults", {})
     if not isinstance(defaults, dict):
         raise ProfileFileError(path, "defaults", "must be a table")
