@@ -15,6 +15,7 @@ import sys
 from tqdm import tqdm
 
 from pourbench.argtypes import positive_float
+from pourbench.errors import InvalidParameterError, check_positive
 from pourbench.outputs import check_output_path
 
 
@@ -29,34 +30,45 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run_demo(args: argparse.Namespace) -> int:
+    """Run the demo with the parsed flags (also callable directly: every value is checked
+    before the scene is built or the recording started)."""
     from pourbench.fluids.record import FluidRecorder
     from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
     from pourbench.fluids.solver import SolverConfig, cuda_available
 
+    mass_g = check_positive("mass_g", args.mass_g)
+    seconds = check_positive("seconds", args.seconds)
+    if args.device not in ("cpu", "cuda"):
+        raise InvalidParameterError(f"device must be 'cpu' or 'cuda', got {args.device!r}")
     if args.device == "cuda" and not cuda_available():
         raise ValueError("--device cuda: Warp sees no CUDA device")
+    config = SolverConfig(device=args.device)
+    steps = round(seconds / config.dt)
+    if steps < 1:
+        raise InvalidParameterError(
+            f"seconds must be at least one solver step ({config.dt:g} s), got {args.seconds!r}"
+        )
     check_output_path(args.out)  # before the scene is built: a bad path fails at once
-    scene = two_cup_scene(args.liquid, args.mass_g, config=SolverConfig(device=args.device))
+    scene = two_cup_scene(args.liquid, mass_g, config=config)
     solver = scene.solver
     rec = FluidRecorder(args.out, solver)
-    steps = round(args.seconds / solver.config.dt)
-    frame = max(1, round(1 / 30 / solver.config.dt))  # record at 30 Hz
-    print(
-        f"pouring {args.mass_g:g} g of {solver.liquids[0].name} "
-        f"({solver.num_particles} particles) for {args.seconds:g} s",
-        file=sys.stderr,
-    )
-    try:
+    try:  # interrupted or failed: keep the previous recording, leave no partial file
+        frame = max(1, round(1 / 30 / solver.config.dt))  # record at 30 Hz
+        print(
+            f"pouring {mass_g:g} g of {solver.liquids[0].name} "
+            f"({solver.num_particles} particles) for {seconds:g} s",
+            file=sys.stderr,
+        )
         bar = tqdm(range(steps), desc="simulating", unit="step", file=sys.stderr, mininterval=2)
         for k in bar:
             scene.set_tilt(tilt_schedule(solver.time))
             scene.step()
             if k % frame == 0:
                 rec.log()
-    except BaseException:  # interrupted or failed: keep the previous recording
+        out = rec.close()
+    except BaseException:
         rec.discard()
         raise
-    out = rec.close()
     m = scene.metrics()
     print(f"poured into the receiving cup: {m.inside_g[1]:7.1f} g")
     print(f"spilled:                       {m.spilled_g:7.1f} g")

@@ -11,22 +11,39 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pourbench.errors import PourbenchError
+from pourbench.errors import InvalidParameterError
 
 
-class OutputPathError(PourbenchError):
+class OutputPathError(InvalidParameterError):
     """An output path that cannot be written."""
+
+
+def _as_path(path: object, what: str, empty_ok: bool = False) -> Path:
+    """``path`` (a ``str`` or ``os.PathLike``, non-empty unless ``empty_ok``: the current
+    folder) as a :class:`~pathlib.Path`."""
+    if not isinstance(path, str | os.PathLike) or isinstance(path, bytes):
+        raise OutputPathError(f"{what} must be a path (str), got {path!r}")
+    text = os.fspath(path)
+    if not isinstance(text, str) or not (text or empty_ok):
+        raise OutputPathError(f"{what} must be a non-empty path, got {path!r}")
+    if "\0" in text:
+        raise OutputPathError(f"{what} {text!r} contains a NUL character")
+    return Path(text)
 
 
 def check_output_path(path: str | Path) -> Path:
     """``path`` as a :class:`~pathlib.Path` whose folder exists (created if missing).
 
     Raises:
-        OutputPathError: the path is a folder, or its folder cannot be created or written.
+        OutputPathError: the path is not a non-empty path string, contains NUL, ends with a
+            separator or is a folder, or its folder cannot be created or written.
     """
-    p = Path(path)
+    p = _as_path(path, "output path")
+    text = os.fspath(path)
     if p.is_dir():
         raise OutputPathError(f"output path {str(p)!r} is a folder; give a file name")
+    if text.endswith(tuple(s for s in (os.sep, os.altsep) if s)):
+        raise OutputPathError(f"output path {text!r} ends with a separator; give a file name")
     check_output_folder(p.parent)
     return p
 
@@ -35,9 +52,10 @@ def check_output_folder(path: str | Path) -> Path:
     """``path`` as a folder that exists (created if missing) and can be written.
 
     Raises:
-        OutputPathError: the path is a file, or the folder cannot be created or written.
+        OutputPathError: the path is not a path string, contains NUL or is a file,
+            or the folder cannot be created or written.
     """
-    p = Path(path)
+    p = _as_path(path, "output folder", empty_ok=True)
     if p.exists() and not p.is_dir():
         raise OutputPathError(f"output folder {str(p)!r} is a file; give a folder")
     try:

@@ -11,7 +11,7 @@ import pytest
 from sb3_contrib import RecurrentPPO
 from stable_baselines3 import PPO
 
-from pourbench.agents.evaluate import evaluate, load_sb3_policy
+from pourbench.agents.evaluate import evaluate, load_sb3_policy, make_policy
 from pourbench.agents.sb3 import SB3PourVecEnv
 from pourbench.cli import main
 
@@ -86,3 +86,33 @@ def test_files_that_are_not_pour_models_are_refused(tmp_path, capsys) -> None:
     other.save(tmp_path / "pendulum.zip")
     assert main(["eval", "--policy", str(tmp_path / "pendulum.zip"), "--episodes", "1"]) == 2
     assert "observations (3,) and actions (1,)" in capsys.readouterr().err
+
+
+def _still(obs: np.ndarray, new: bool) -> np.ndarray:
+    return np.zeros(2, np.float32)
+
+
+@pytest.mark.parametrize(
+    "call, words",
+    [
+        (lambda: evaluate(_still, 0), "episodes must be >= 1, got 0"),
+        (lambda: evaluate(_still, -1), "episodes must be >= 1, got -1"),
+        (lambda: evaluate(_still, 1.5), "episodes must be an integer, got 1.5"),
+        (lambda: evaluate(5, 1), "policy must be one of .* or a callable .* got 5"),
+        (lambda: evaluate(None, 1), "policy must be one of .* got None"),
+        (lambda: evaluate(_still, 1, seed=None), "seed must be an integer, got None"),
+        (lambda: evaluate(_still, 1, seed=-1), "seed must be >= 0, got -1"),
+        (lambda: evaluate(_still, 1, liquidd="water"), "unknown environment setting 'liquidd'"),
+        (lambda: make_policy("random", float("nan")), "seed must be an integer, got nan"),
+        (lambda: make_policy("random", -1), "seed must be >= 0"),
+    ],
+)
+def test_bad_evaluation_settings_are_refused_before_any_episode(call, words) -> None:
+    with pytest.raises(ValueError, match=words):
+        call()
+
+
+def test_unknown_env_setting_lists_the_valid_ones() -> None:
+    with pytest.raises(ValueError, match=r"PourConfig fields: .*max_steps") as exc:
+        evaluate(_still, 1, liquidd="water")
+    assert "liquid" in str(exc.value).split("fields:")[1]

@@ -22,6 +22,8 @@ TINY = ["--budget-s", "2", "--num-envs", "1", "--n-steps", "16", "--eval-episode
         (["--num-envs", "0"], "num_envs"),
         (["--eval-episodes", "0"], "eval_episodes"),
         (["--seed", "-3"], "seed"),
+        (["--n-steps", "1", "--num-envs", "1"], "n_steps * num_envs"),
+        (["--threads", "0"], "threads must be >= 1"),
         (["--resume"], "no model to resume"),
     ],
 )
@@ -68,3 +70,55 @@ def test_training_resumes_and_never_overwrites(tmp_path, capsys) -> None:
     assert main([*TINY, "--out", str(out), "--resume"]) == 0
     assert json.loads((out / "result.json").read_text())["timesteps"] > first
     assert not list(out.glob("*.partial*"))
+
+
+@pytest.mark.parametrize(
+    "kw, words",
+    [
+        ({"eval_episodes": 1.5}, "eval_episodes must be an integer, got 1.5"),
+        ({"num_envs": 1.5}, "num_envs must be an integer, got 1.5"),
+        ({"num_envs": True}, "num_envs must be an integer, got True"),
+        ({"num_envs": float("nan")}, "num_envs must be an integer, got nan"),
+        ({"n_steps": 2.5}, "n_steps must be an integer, got 2.5"),
+        ({"threads": 0}, "threads must be >= 1"),
+        ({"seed": 1.5}, "seed must be an integer, got 1.5"),
+        ({"seed": float("nan")}, "seed must be an integer, got nan"),
+        ({"seed": True}, "seed must be an integer, got True"),
+        ({"seed": None}, "seed must be an integer, got None"),
+        ({"budget_s": "5"}, "budget_s must be a number, got '5'"),
+        ({"target_g": float("inf")}, "target_g must be finite"),
+        ({"checkpoint_s": 0}, "checkpoint_s must be > 0"),
+        ({"resume": "no"}, "resume must be True or False, got 'no'"),
+        ({"out": None}, "out must be a non-empty folder path, got None"),
+        ({"out": ""}, "out must be a non-empty folder path"),
+        ({"liquid": None}, "liquid must be a liquid name"),
+        ({"n_steps": 1, "num_envs": 1}, r"n_steps \* num_envs .* must be >= 2"),
+    ],
+)
+def test_bad_settings_are_refused_before_any_training(kw, words) -> None:
+    """Refused when the settings are made: a run never trains (and saves a model) only to
+    fail in its evaluation and leave the model without result.json."""
+    from pourbench.agents.train import TrainArgs
+
+    with pytest.raises(ValueError, match=words):
+        TrainArgs(**kw)
+
+
+def test_good_settings_are_kept() -> None:
+    from pathlib import Path
+
+    from pourbench.agents.train import TrainArgs
+
+    args = TrainArgs(n_steps=2, num_envs=1, seed=0, out=Path("runs") / "x", budget_s=5)
+    assert (args.out, args.budget_s, args.n_steps) == (str(Path("runs/x")), 5, 2)
+
+
+def test_resuming_a_corrupt_model_names_the_file(tmp_path, capsys) -> None:
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.zip").write_text("not a model")
+    assert main([*TINY, "--out", str(out), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "model.zip" in err and "is not a readable PPO model" in err
+    assert (out / "model.zip").read_text() == "not a model"
+    assert sorted(p.name for p in out.iterdir()) == ["model.zip"]

@@ -146,3 +146,63 @@ def test_ctrl_c_ends_a_run_in_one_line_and_keeps_the_previous_recording(
     assert err.strip().splitlines()[-1] == "pourbench: interrupted" and "Traceback" not in err
     assert out.read_bytes() == b"an earlier recording"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.rrd"]  # no partial file left
+
+
+@pytest.mark.parametrize(
+    "kw, words",
+    [
+        ({"seconds": float("nan")}, "seconds must be finite, got nan"),
+        ({"seconds": float("inf")}, "seconds must be finite, got inf"),
+        ({"seconds": -1.0}, "seconds must be > 0, got -1.0"),
+        ({"seconds": 1e-9}, "seconds must be at least one solver step"),
+        ({"mass_g": float("nan")}, "mass_g must be finite, got nan"),
+        ({"mass_g": 0.0}, "mass_g must be > 0"),
+        ({"device": "tpu"}, "device must be 'cpu' or 'cuda', got 'tpu'"),
+    ],
+)
+def test_run_demo_called_directly_refuses_bad_numbers(tmp_path, kw, words) -> None:
+    """``run_demo`` checks its values itself (not only the parser), before the scene is built
+    or the recording started: the previous recording stays, no partial file is left."""
+    import argparse
+
+    from pourbench.demo import run_demo
+
+    out = tmp_path / "demo.rrd"
+    out.write_bytes(b"an earlier recording")
+    args = {"liquid": "water", "mass_g": 20.0, "seconds": 0.5, "out": str(out), "device": "cpu"}
+    with pytest.raises(ValueError, match=words):
+        run_demo(argparse.Namespace(**{**args, **kw}))
+    assert out.read_bytes() == b"an earlier recording"
+    assert [p.name for p in tmp_path.iterdir()] == ["demo.rrd"]
+
+
+@pytest.mark.parametrize(
+    "path, words",
+    [
+        (None, "output path must be a path"),
+        (5, "output path must be a path"),
+        ("", "output path must be a non-empty path"),
+        ("od/a\0b", "contains a NUL character"),
+        ("od/newdir/", "ends with a separator; give a file name"),
+    ],
+)
+def test_bad_output_paths_are_refused(tmp_path, monkeypatch, path, words) -> None:
+    from pourbench.errors import InvalidParameterError
+    from pourbench.outputs import check_output_path
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(InvalidParameterError, match=words):
+        check_output_path(path)
+    assert list(tmp_path.iterdir()) == []  # no folder made
+
+
+def test_output_folder_checks(tmp_path, monkeypatch) -> None:
+    from pourbench.outputs import OutputPathError, check_output_folder, check_output_path
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(OutputPathError, match="must be a path"):
+        check_output_folder(None)
+    with pytest.raises(OutputPathError, match="NUL"):
+        check_output_folder("a\0b")
+    assert check_output_path("new/x.json").parent.is_dir()  # good paths as before
+    assert check_output_folder("") == check_output_folder(".")  # the current folder

@@ -132,3 +132,87 @@ def test_sb3_adapter() -> None:
     model.learn(total_timesteps=8)
     action, _ = model.predict(obs, deterministic=True)
     assert action.shape == (2, 2)
+
+
+def test_pd_refuses_bad_observations_and_keeps_its_state() -> None:
+    """A wrong-shaped or non-finite observation is refused before any state changes: the
+    pourer then acts exactly as one that never saw it, and still resets."""
+    obs = [_obs(0.0, 100.0, 0.0), _obs(0.0, 100.0, 0.7), _obs(20.0, 100.0, 1.2)]
+    ref, pd = PDPourer(1), PDPourer(1)
+    expected = [ref.act(o) for o in obs]
+    got = [pd.act(obs[0])]
+    bad = [np.zeros((2, 12)), np.zeros(11), np.zeros(24), np.full(12, np.nan), "x"]
+    for o in bad:
+        with pytest.raises(ValueError, match="obs must"):
+            pd.act(o)
+    got += [pd.act(o) for o in obs[1:]]
+    np.testing.assert_array_equal(np.array(got), np.array(expected))
+    pd.reset()
+    np.testing.assert_allclose(pd.act(obs[0]), [1.0, 1.0])
+    two = PDPourer(2)
+    with pytest.raises(ValueError, match=r"obs must have shape \(2, 12\)"):
+        two.act(np.zeros(12))  # one world's observation for two worlds
+    with pytest.raises(ValueError, match="mask must be 2 booleans"):
+        two.reset(np.array([True]))
+    with pytest.raises(ValueError, match="mask must be 2 booleans"):
+        two.reset([0, 1])  # indices, not booleans
+    two.reset(np.array([True, False]))
+    assert two.act(np.zeros((2, 12))).shape == (2, 2)
+
+
+@pytest.mark.parametrize(
+    "make, words",
+    [
+        (lambda: PDPourer(2.7), "num_envs must be an integer"),
+        (lambda: PDPourer(0), "num_envs must be >= 1"),
+        (lambda: PDPourer(float("nan")), "num_envs must be an integer"),
+        (lambda: PDPourer(1, config="fast"), "config must be a PDConfig"),
+        (lambda: PDConfig(control_dt=0.0), "control_dt must be > 0"),
+        (lambda: PDConfig(control_dt=-0.1), "control_dt must be >= 0"),
+        (lambda: PDConfig(control_dt=float("nan")), "control_dt must be finite"),
+        (lambda: PDConfig(kp=float("nan")), "kp must be finite"),
+        (lambda: PDConfig(search_rate="x"), "search_rate must be a number"),
+        (lambda: PDConfig(search_rate=2.0), r"search_rate must be in \[0, 1\]"),
+        (lambda: PDConfig(flow_smoothing=2.0), r"flow_smoothing must be in \(0, 1\]"),
+        (lambda: PDConfig(min_flow=40.0, max_flow=30.0), "min_flow must be <= max_flow"),
+    ],
+)
+def test_pd_bad_settings_are_refused(make, words) -> None:
+    with pytest.raises(ValueError, match=words):
+        make()
+
+
+def test_sb3_adapter_indices_and_close() -> None:
+    """``env_method("reset", indices=[0])`` resets world 0 only; ``set_attr`` and other
+    methods take every world or nothing; indices out of range and use after close are
+    refused."""
+    from pourbench.agents.sb3 import SB3PourVecEnv
+
+    venv, ref = (SB3PourVecEnv(2, seed=0, liquid="water", max_steps=50) for _ in range(2))
+    first, _ = venv.reset(), ref.reset()
+    for _ in range(5):
+        venv.step(np.ones((2, 2), np.float32))
+        ref.step(np.ones((2, 2), np.float32))
+    (reset0,) = venv.env_method("reset", indices=[0])
+    assert reset0[0].shape == (12,)
+    after, *_ = venv.step(np.zeros((2, 2), np.float32))
+    expected, *_ = ref.step(np.zeros((2, 2), np.float32))
+    np.testing.assert_array_equal(after[1], expected[1])  # world 1 went on, not reset
+    assert not np.array_equal(after[1], first[1])
+    assert not np.array_equal(after[0], expected[0])  # world 0 started over
+    ref.close()
+    with pytest.raises(ValueError, match="indices 7 not in"):
+        venv.get_attr("num_envs", indices=[7, 8, 9])
+    with pytest.raises(ValueError, match="indices 2 not in"):
+        venv.env_method("reset", indices=2)
+    with pytest.raises(ValueError, match=r"set_attr.*acts on all 2 worlds"):
+        venv.set_attr("foo", 1, indices=[1])
+    with pytest.raises(ValueError, match=r"env_method.*acts on all 2 worlds"):
+        venv.env_method("set_lesson", 0, indices=[0])
+    assert venv.get_attr("num_envs", indices=[1]) == [2]
+    venv.set_attr("foo", 1, indices=[0, 1])  # every world: allowed
+    assert venv.get_attr("foo") == [1, 1]
+    venv.close()
+    with pytest.raises(ValueError, match="closed"):
+        venv.step(np.zeros((2, 2), np.float32))
+    venv.close()  # a second close is harmless

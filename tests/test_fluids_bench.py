@@ -132,3 +132,78 @@ def test_env_bench_runs_past_an_episode_end() -> None:
     row = env.run_case("single", "cpu", 1, budget_s=0.0, min_steps=260)
     assert row["worlds"] == 1 and row["env_steps_per_s"] > 0
     assert 0.3 < row["g_per_particle"] < 0.7  # 8 mm particles of water, about 0.5 g each
+
+
+def _pair(folder) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+@pytest.mark.parametrize(
+    "kw, words",
+    [
+        ({"body_md": None}, "body_md must be a str, got None"),
+        ({"title": 5}, "title must be a str"),
+        ({"rows": None}, "rows must be a list of dicts, got None"),
+        ({"rows": "abc"}, "rows must be a list of dicts, got 'abc'"),
+        ({"rows": [1]}, r"rows\[0\] must be a dict"),
+        ({"rows": [{"a": object()}]}, r"rows\[0\]\['a'\] is not a JSON value"),
+        ({"extra": 3}, "extra must be a dict or None"),
+        ({"suite": "../escaped"}, "suite must be a plain file stem"),
+        ({"suite": "a/b"}, "suite must be a plain file stem"),
+        ({"suite": ""}, "suite must be a plain file stem"),
+        ({"suite": None}, "suite must be a plain file stem"),
+    ],
+)
+def test_a_refused_report_leaves_the_previous_pair(tmp_path, kw, words) -> None:
+    """Bad input is refused before either file is written: the earlier JSON and markdown stay
+    together, nothing is written outside ``out`` and no temporary file is left."""
+    from pourbench.bench._report import write_report
+
+    out = tmp_path / "lb"
+    write_report("s", [{"a": 1}], out=out, title="t", body_md="old")
+    before = _pair(out)
+    args = {"suite": "s", "rows": [{"a": 2}], "title": "t", "body_md": "new", **kw}
+    suite = args.pop("suite")
+    with pytest.raises(ValueError, match=words):
+        write_report(suite, out=out, **args)
+    assert _pair(out) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lb"]
+
+
+def test_a_report_whose_markdown_path_is_a_folder_keeps_its_json(tmp_path) -> None:
+    from pourbench.bench._report import write_report
+
+    write_report("s", [{"a": 1}], out=tmp_path, title="t", body_md="old")
+    (tmp_path / "s.md").unlink()
+    (tmp_path / "s.md").mkdir()
+    before = (tmp_path / "s.json").read_bytes()
+    with pytest.raises(ValueError, match="is a folder"):
+        write_report("s", [{"a": 2}], out=tmp_path, title="t", body_md="new")
+    assert (tmp_path / "s.json").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.json", "s.md"]
+
+
+def test_report_json_is_strict_with_numpy_values_and_nan_as_null(tmp_path) -> None:
+    """NaN / inf are written as null (a missing value, as rows write None); NumPy scalars
+    and arrays as plain numbers."""
+    from pourbench.bench._report import write_report
+
+    rows = [{"a": np.int64(2), "b": np.float32(0.5), "c": float("nan"), "d": np.array([1, 2])}]
+    json_path, md_path = write_report(
+        "s", rows, out=tmp_path, title="t", body_md="b", extra={"x": float("inf")}
+    )
+
+    def refuse(name):
+        raise AssertionError(f"{name} in the JSON")
+
+    doc = json.loads(json_path.read_text(), parse_constant=refuse)
+    assert doc["rows"] == [{"a": 2, "b": 0.5, "c": None, "d": [1, 2]}] and doc["x"] is None
+    assert md_path.read_text().startswith("# t\n")
+    assert not list(tmp_path.glob("*.partial"))
+
+
+def test_unknown_bench_device_is_refused() -> None:
+    from pourbench.bench._report import devices
+
+    with pytest.raises(ValueError, match="device must be 'auto', 'cpu' or 'cuda', got 'gpu'"):
+        devices("gpu", quick=True)

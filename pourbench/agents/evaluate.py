@@ -7,9 +7,10 @@ policy is "pd", "random", or the path of a Stable-Baselines3 model saved by trai
 
 from __future__ import annotations
 
+import os
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,9 @@ from tqdm import tqdm
 
 from pourbench.agents.pd import PDConfig, PDPourer
 from pourbench.argtypes import BUILTIN_POLICIES
+from pourbench.envs.core import PourConfig
 from pourbench.envs.pour import PourEnv
+from pourbench.errors import InvalidParameterError, check_int
 
 POLICIES = BUILTIN_POLICIES
 
@@ -104,7 +107,15 @@ def load_sb3_policy(path: str | Path) -> Callable[[np.ndarray, bool], np.ndarray
 
 def make_policy(name: str, seed: int = 0) -> Callable[[np.ndarray, bool], np.ndarray]:
     """A policy ``f(obs, new_episode) -> action`` by name ("pd" or "random") or the path of a
-    saved model (:func:`load_sb3_policy`)."""
+    saved model (:func:`load_sb3_policy`); ``seed`` (an integer >= 0) seeds "random"."""
+    if isinstance(name, os.PathLike):
+        name = os.fspath(name)
+    if not isinstance(name, str):
+        raise InvalidParameterError(
+            f"policy must be one of {list(POLICIES)}, a saved model's path or a callable "
+            f"f(obs, new_episode), got {name!r}"
+        )
+    seed = check_int("seed", seed, minimum=0)
     if name == "pd":
         pd = PDPourer(1, PDConfig())
 
@@ -139,9 +150,23 @@ def evaluate(
         target_g: target of every episode (None: drawn by the env), g.
         seed: first episode's seed.
         progress: show a progress bar.
-        **env_kwargs: :class:`~pourbench.envs.core.PourConfig` fields (e.g. ``liquid``).
+        **env_kwargs: :class:`~pourbench.envs.core.PourConfig` fields (e.g. ``liquid``),
+            or :class:`~pourbench.envs.pour.PourEnv`'s ``render_mode`` / ``record_path``.
+
+    Raises:
+        InvalidParameterError: ``episodes`` not an integer >= 1, ``seed`` not an integer
+            >= 0, a policy that is neither a name, a path nor a callable, or an unknown
+            ``env_kwargs`` name; all checked before any episode runs.
     """
-    act = make_policy(policy, seed) if isinstance(policy, str) else policy
+    episodes = check_int("episodes", episodes, minimum=1)
+    seed = check_int("seed", seed, minimum=0)
+    known = [f.name for f in fields(PourConfig)]
+    unknown = sorted(set(env_kwargs) - {*known, "render_mode", "record_path"})
+    if unknown:
+        raise InvalidParameterError(
+            f"unknown environment setting {unknown[0]!r}; PourConfig fields: {', '.join(known)}"
+        )
+    act = policy if callable(policy) else make_policy(policy, seed)  # type: ignore[arg-type]
     env = PourEnv(**env_kwargs)
     errors, spills, success, steps = [], [], [], []
     options = {} if target_g is None else {"target_g": float(target_g)}

@@ -27,9 +27,11 @@ Works on batches: ``act(obs)`` takes (n, 12) or (12,) observations.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
+
+from pourbench.errors import InvalidParameterError, check_array, check_finite, check_int
 
 WEIGHT, TARGET, TILT = 7, 8, 11
 
@@ -74,13 +76,36 @@ class PDConfig:
     stall_time: float = 1.0
     short_margin_g: float = 2.0
 
+    def __post_init__(self) -> None:
+        """Every field finite and non-negative; ``control_dt`` and ``stall_time`` > 0, the
+        smoothing weights in (0, 1], ``search_rate`` in [0, 1], ``min_flow <= max_flow``."""
+        for f in fields(self):
+            check_finite(f.name, getattr(self, f.name), minimum=0.0)
+        for name in ("control_dt", "stall_time"):
+            if getattr(self, name) <= 0:
+                raise InvalidParameterError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("flow_smoothing", "weight_smoothing"):
+            if not 0 < getattr(self, name) <= 1:
+                raise InvalidParameterError(
+                    f"{name} must be in (0, 1], got {getattr(self, name)!r}"
+                )
+        if self.search_rate > 1:
+            raise InvalidParameterError(f"search_rate must be in [0, 1], got {self.search_rate!r}")
+        if self.min_flow > self.max_flow:
+            raise InvalidParameterError(
+                f"min_flow must be <= max_flow, got min_flow={self.min_flow!r} "
+                f"and max_flow={self.max_flow!r}"
+            )
+
 
 class PDPourer:
-    """The PD baseline for a batch of ``num_envs`` worlds."""
+    """The PD baseline for a batch of ``num_envs`` worlds (an integer >= 1)."""
 
     def __init__(self, num_envs: int = 1, config: PDConfig | None = None) -> None:
+        if config is not None and not isinstance(config, PDConfig):
+            raise InvalidParameterError(f"config must be a PDConfig or None, got {config!r}")
         self.config = config or PDConfig()
-        self.n = int(num_envs)
+        self.n = check_int("num_envs", num_envs, minimum=1)
         self.last_w = np.full(self.n, np.nan)
         self.flow = np.zeros(self.n)
         self.onset = np.zeros(self.n, bool)
@@ -95,8 +120,10 @@ class PDPourer:
         self.searching = np.zeros(self.n, bool)
 
     def reset(self, mask: np.ndarray | None = None) -> None:
-        """Forget the history of every world (or of those in ``mask``)."""
-        m = np.ones(self.n, bool) if mask is None else np.asarray(mask, bool)
+        """Forget the history of every world (or of those in ``mask``, ``n`` booleans)."""
+        m = np.ones(self.n, bool) if mask is None else np.asarray(mask)
+        if m.shape != (self.n,) or m.dtype != bool:
+            raise InvalidParameterError(f"mask must be {self.n} booleans, got {mask!r}")
         self.last_w[m] = np.nan
         self.flow[m] = 0.0
         self.onset[m] = False
@@ -111,10 +138,10 @@ class PDPourer:
         self.searching[m] = False
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        """Actions (n, 2) ``(ω, r)`` for observations (n, 12) (or (2,) for (12,))."""
-        o = np.asarray(obs, float)
-        single = o.ndim == 1
-        o = o.reshape(-1, 12)
+        """Actions (n, 2) ``(ω, r)`` for finite observations (n, 12) (or (2,) for (12,) when
+        ``n`` is 1); bad observations are refused before any state changes."""
+        single = self.n == 1 and np.ndim(obs) == 1
+        o = check_array("obs", obs, (12,) if single else (self.n, 12)).reshape(-1, 12)
         c = self.config
         w, target, tilt = o[:, WEIGHT], o[:, TARGET], o[:, TILT]
         q_new = np.where(np.isnan(self.last_w), 0.0, (w - self.last_w) / c.control_dt)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import numbers
 import os
 import sys
 import time
@@ -22,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, check_finite
+from pourbench.errors import InvalidParameterError, check_int, check_positive
 
 
 @dataclass
@@ -56,14 +57,29 @@ class TrainArgs:
     resume: bool = False
 
     def __post_init__(self) -> None:
+        """Every setting checked at construction, before any training: a run that trains is
+        not lost to a bad setting its evaluation would meet only at the end."""
         for name in ("budget_s", "target_g", "checkpoint_s"):
-            if check_finite(name, getattr(self, name)) <= 0:
-                raise InvalidParameterError(f"{name} must be > 0, got {getattr(self, name)!r}")
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise InvalidParameterError(f"{name} must be a number, got {value!r}")
+            check_positive(name, value)
         for name in ("num_envs", "n_steps", "eval_episodes", "threads"):
-            if getattr(self, name) < 1:
-                raise InvalidParameterError(f"{name} must be >= 1, got {getattr(self, name)!r}")
-        if self.seed < 0:
-            raise InvalidParameterError(f"seed must be >= 0, got {self.seed!r}")
+            check_int(name, getattr(self, name), minimum=1)
+        check_int("seed", self.seed, minimum=0)
+        # PPO's minibatch is min(64, n_steps * num_envs) samples and SB3 needs more than one
+        if self.n_steps * self.num_envs < 2:
+            raise InvalidParameterError(
+                "n_steps * num_envs (the PPO rollout, and its minibatch size up to 64) must be "
+                f">= 2, got n_steps={self.n_steps!r} and num_envs={self.num_envs!r}"
+            )
+        if not isinstance(self.liquid, str) or not self.liquid:
+            raise InvalidParameterError(f"liquid must be a liquid name, got {self.liquid!r}")
+        if not isinstance(self.resume, bool):
+            raise InvalidParameterError(f"resume must be True or False, got {self.resume!r}")
+        if not isinstance(self.out, str | os.PathLike) or not os.fspath(self.out):
+            raise InvalidParameterError(f"out must be a non-empty folder path, got {self.out!r}")
+        self.out = os.fspath(self.out)  # a str, as result.json records it
 
 
 def _save(model, path: Path) -> None:
@@ -112,7 +128,14 @@ def train(args: TrainArgs) -> dict:
             return now - self.t0 < args.budget_s
 
     if args.resume:
-        model = PPO.load(model_path, env=venv, device="cpu")
+        try:
+            model = PPO.load(model_path, env=venv, device="cpu")
+        except Exception as exc:  # a corrupt or foreign file: name it, say what is wrong
+            venv.close()
+            raise InvalidParameterError(
+                f"--resume: {str(model_path)!r} is not a readable PPO model "
+                f"({type(exc).__name__}: {exc})"
+            ) from exc
         print(f"resuming {model_path} at {model.num_timesteps} timesteps")
     else:
         model = PPO(

@@ -8,14 +8,20 @@ git SHA and machine, so every committed number says where it came from.
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
+import re
 import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
+
+import numpy as np
+
+from pourbench.errors import InvalidParameterError
 
 
 def git_sha() -> str:
@@ -69,6 +75,8 @@ def provenance() -> dict[str, str]:
 def devices(choice: str, quick: bool = False) -> list[str]:
     """The devices a suite times for ``--device``: ``auto`` is the CPU plus CUDA when Warp sees
     a device (not in a quick run), ``cpu`` / ``cuda`` that device alone."""
+    if choice not in ("auto", "cpu", "cuda"):
+        raise InvalidParameterError(f"device must be 'auto', 'cpu' or 'cuda', got {choice!r}")
     if choice in ("cpu", "cuda"):
         return [choice]
     from pourbench.fluids.solver import cuda_available
@@ -104,6 +112,29 @@ def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str]) -> st
     return "\n".join(lines)
 
 
+_STEM = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
+
+
+def _plain(value: Any, where: str) -> Any:
+    """``value`` with NumPy scalars and arrays made plain Python values and NaN / ±inf made
+    ``None`` (JSON ``null``, as a missing value is written), so the file is strict JSON.
+
+    Raises:
+        InvalidParameterError: a value JSON cannot hold (named by ``where``).
+    """
+    if isinstance(value, np.ndarray | np.generic):
+        value = value.tolist()
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if value is None or isinstance(value, str | bool | int):
+        return value
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v, f"{where}[{k!r}]") for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    raise InvalidParameterError(f"{where} is not a JSON value: {value!r}")
+
+
 def write_report(
     suite: str,
     rows: Sequence[dict[str, Any]],
@@ -115,24 +146,53 @@ def write_report(
 ) -> tuple[Path, Path]:
     """Write ``<out>/<suite>.json`` (rows + provenance) and ``<out>/<suite>.md``.
 
+    Everything is checked and both texts are rendered before either file is written, and
+    both files are written through temporary siblings and moved into place together, so bad
+    input leaves an earlier pair as it was. NumPy scalars are written as plain numbers and
+    a NaN or infinite value as ``null`` (a missing value, as rows write ``None``), so the
+    JSON is strict.
+
     Args:
-        suite: file stem, e.g. ``"fluids"``.
+        suite: file stem, e.g. ``"fluids"`` (letters, digits, ``_``, ``-`` and ``.``, no
+            folders).
         rows: one dict per measured case.
         out: folder to write into (created if missing).
         title: markdown heading.
         body_md: the suite's tables and notes in markdown (provenance is added here).
         extra: more top-level JSON fields.
+
+    Raises:
+        InvalidParameterError: a bad suite name, rows that are not a list of dicts, a title
+            or body that is not text, or a value JSON cannot hold; an output path that is a
+            folder (``OutputPathError``).
     """
-    from pourbench.outputs import check_output_folder, write_text_atomic
+    from pourbench.outputs import AtomicOutput, check_output_folder
+
+    if not isinstance(suite, str) or not _STEM.fullmatch(suite):
+        raise InvalidParameterError(
+            f"suite must be a plain file stem (letters, digits, _ - .), got {suite!r}"
+        )
+    if isinstance(rows, str | bytes | Mapping) or not isinstance(rows, Sequence):
+        raise InvalidParameterError(f"rows must be a list of dicts, got {rows!r}")
+    rows = list(rows)
+    for i, r in enumerate(rows):
+        if not isinstance(r, Mapping):
+            raise InvalidParameterError(f"rows[{i}] must be a dict, got {r!r}")
+    for name, text in (("title", title), ("body_md", body_md)):
+        if not isinstance(text, str):
+            raise InvalidParameterError(f"{name} must be a str, got {text!r}")
+    if extra is not None and not isinstance(extra, Mapping):
+        raise InvalidParameterError(f"extra must be a dict or None, got {extra!r}")
+    plain_rows = _plain(rows, "rows")
+    plain_extra = _plain(dict(extra or {}), "extra")
 
     out = check_output_folder(out)
+    outputs = [AtomicOutput(out / f"{suite}.json"), AtomicOutput(out / f"{suite}.md")]
     prov = provenance()
     gpu = accelerator(rows)
     if gpu:
         prov["accelerator"] = gpu
-    doc = {"suite": suite, **prov, **(extra or {}), "rows": list(rows)}
-    json_path = out / f"{suite}.json"
-    write_text_atomic(json_path, json.dumps(doc, indent=2) + "\n")
+    doc = {"suite": suite, **prov, **plain_extra, "rows": plain_rows}
     md = [
         f"# {title}",
         "",
@@ -145,6 +205,13 @@ def write_report(
         body_md.strip(),
         "",
     ]
-    md_path = out / f"{suite}.md"
-    write_text_atomic(md_path, "\n".join(md))
+    texts = [json.dumps(doc, indent=2, allow_nan=False) + "\n", "\n".join(md)]
+    try:
+        for o, text in zip(outputs, texts, strict=True):
+            o.partial.write_text(text)
+    except BaseException:
+        for o in outputs:
+            o.discard()
+        raise
+    json_path, md_path = (o.commit() for o in outputs)
     return json_path, md_path
