@@ -270,6 +270,9 @@ def test_bad_settings_and_resets_are_refused_before_anything_changes() -> None:
     with pytest.raises(ValueError, match=r"actions must have shape \(2, 2\)"):
         venv.step(np.zeros(4))  # which two numbers are world 1's would be a guess
     assert [w.steps for w in venv.batch.worlds] == steps, "a refused step stepped a world"
+    for make in (PourEnv, lambda **kw: PourVectorEnv(2, **kw)):
+        with pytest.raises(InvalidParameterError, match="unknown environment setting 'liquidd'"):
+            make(liquidd="water")  # was PourConfig's bare TypeError
     with pytest.raises(InvalidParameterError, match="control_hz must be >= 1 Hz"):
         PourEnv(control_hz=0.01)  # 12,000 solver steps an env step
     with pytest.raises(InvalidParameterError, match="reset options must be a dict"):

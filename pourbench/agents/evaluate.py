@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import zipfile
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -19,8 +19,7 @@ from tqdm import tqdm
 
 from pourbench.agents.pd import PDConfig, PDPourer
 from pourbench.argtypes import BUILTIN_POLICIES
-from pourbench.envs.core import PourConfig
-from pourbench.envs.pour import PourEnv
+from pourbench.envs.pour import PourEnv, check_settings
 from pourbench.errors import InvalidParameterError, check_int
 
 POLICIES = BUILTIN_POLICIES
@@ -160,12 +159,7 @@ def evaluate(
     """
     episodes = check_int("episodes", episodes, minimum=1)
     seed = check_int("seed", seed, minimum=0)
-    known = [f.name for f in fields(PourConfig)]
-    unknown = sorted(set(env_kwargs) - {*known, "render_mode", "record_path"})
-    if unknown:
-        raise InvalidParameterError(
-            f"unknown environment setting {unknown[0]!r}; PourConfig fields: {', '.join(known)}"
-        )
+    check_settings(env_kwargs, also=("render_mode", "record_path"))
     act = policy if callable(policy) else make_policy(policy, seed)  # type: ignore[arg-type]
     env = PourEnv(**env_kwargs)
     errors, spills, success, steps = [], [], [], []

@@ -6,6 +6,8 @@ The single environment is the batch of one of :class:`~pourbench.envs.core.PourB
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping, Sequence
+from dataclasses import fields
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -13,6 +15,7 @@ import mujoco
 import numpy as np
 
 from pourbench.envs.core import OBS_BOUND, OBS_SIZE, PourBatch, PourConfig
+from pourbench.errors import InvalidParameterError
 
 RENDER_SIZE = (480, 640)  # height, width in pixels
 
@@ -27,8 +30,23 @@ def action_space() -> gym.spaces.Box:
     return gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
 
 
+def check_settings(settings: Mapping[str, Any], also: Sequence[str] = ()) -> None:
+    """Refuse a setting that is neither a :class:`PourConfig` field nor in ``also``.
+
+    Raises:
+        InvalidParameterError: naming the first unknown setting and listing the fields.
+    """
+    known = [f.name for f in fields(PourConfig)]
+    unknown = sorted(set(settings) - {*known, *also})
+    if unknown:
+        raise InvalidParameterError(
+            f"unknown environment setting {unknown[0]!r}; PourConfig fields: {', '.join(known)}"
+        )
+
+
 def make_config(**kwargs: Any) -> PourConfig:
-    """A :class:`PourConfig` from keyword arguments (unknown names raise ``TypeError``)."""
+    """A :class:`PourConfig` from keyword arguments (see :func:`check_settings`)."""
+    check_settings(kwargs)
     return PourConfig(**kwargs)
 
 
