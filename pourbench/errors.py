@@ -54,7 +54,10 @@ class CapacityError(PourbenchError):
 
 
 def check_finite(name: str, value: float, *, minimum: float | None = None) -> float:
-    """Return ``value`` as float, raising :class:`InvalidParameterError` if NaN/inf or < minimum."""
+    """Return ``value`` as float, raising :class:`InvalidParameterError` if NaN/inf or < minimum,
+    or not a number (a bool or a string such as ``"0.5"`` is refused, not converted)."""
+    if isinstance(value, bool | np.bool_ | str | bytes):
+        raise InvalidParameterError(f"{name} must be a number, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError) as exc:
@@ -113,6 +116,15 @@ def check_array(name: str, value: object, shape: tuple[int | None, ...]) -> np.n
     if not np.isfinite(arr.sum()) and not np.isfinite(arr).all():
         raise InvalidParameterError(f"{name} must be finite")
     return arr
+
+
+def check_quat(name: str, value: object) -> np.ndarray:
+    """``value`` as 4 finite numbers (w, x, y, z) of non-zero norm, as given (MuJoCo and the
+    planners normalise it); an :class:`InvalidParameterError` naming ``name`` otherwise."""
+    q = check_array(name, value, (4,))
+    if not float(q @ q) > 1e-18:
+        raise InvalidParameterError(f"{name} must not be zero, got {q.tolist()}")
+    return q
 
 
 _UNIT_NORM2 = ((1.0 - 1e-3) ** 2, (1.0 + 1e-3) ** 2)  # |q| within 1e-3 of 1, squared

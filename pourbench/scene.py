@@ -8,8 +8,7 @@ carry gravity compensation, so the robot stands still at ``home`` with zero cont
 
 from __future__ import annotations
 
-import numbers
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -25,7 +24,13 @@ from pourbench.containers import (
     container_names,
     get_container,
 )
-from pourbench.errors import InvalidParameterError, UnknownNameError, check_array, check_positive
+from pourbench.errors import (
+    InvalidParameterError,
+    UnknownNameError,
+    check_array,
+    check_positive,
+    check_quat,
+)
 
 ROBOTS: tuple[str, ...] = ("movo", "panda")
 """Names accepted by :func:`load_robot` and :func:`robot_spec`."""
@@ -341,28 +346,17 @@ _OBSTACLE_TYPES = {
 _OBSTACLE_SIZES = {"sphere": 1, "box": 3, "capsule": 2}  # sizes a kind needs (of MuJoCo's 3)
 
 
-def _is_real(v: object) -> bool:
-    return isinstance(v, numbers.Real) and not isinstance(v, bool)
-
-
 def _check_pos_quat(
     what: str, pos: object, quat: object | None
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """``pos`` as 3 finite numbers, ``quat`` (unless None) as a finite unit quaternion (within
-    1e-3, as :func:`~pourbench.errors.check_poses` asks)."""
+    """``pos`` as 3 finite numbers, ``quat`` (unless None) as a finite non-zero quaternion
+    (MuJoCo normalises it)."""
     p = check_array(f"{what}pos", pos, (3,))
-    if quat is None:
-        return p, None
-    q = check_array(f"{what}quat", quat, (4,))
-    norm = float(np.linalg.norm(q))
-    if not 1.0 - 1e-3 <= norm <= 1.0 + 1e-3:
-        raise InvalidParameterError(
-            f"{what}quat must be a unit quaternion (w, x, y, z), got {quat!r} of norm {norm:.6g}"
-        )
-    return p, q
+    return p, None if quat is None else check_quat(f"{what}quat", quat)
 
 
-def _check_obstacle(i: int, ob: object) -> tuple[np.ndarray, np.ndarray]:
+def _check_obstacle(i: int, ob: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An obstacle's (sizes, pos, quat), checked."""
     if not isinstance(ob, ObstacleGeom):
         raise InvalidParameterError(f"obstacle {i} must be an ObstacleGeom, got {ob!r}")
     if not isinstance(ob.kind, str) or ob.kind not in _OBSTACLE_TYPES:
@@ -370,19 +364,23 @@ def _check_obstacle(i: int, ob: object) -> tuple[np.ndarray, np.ndarray]:
             f"obstacle {i}: kind {ob.kind!r} not one of {sorted(_OBSTACLE_TYPES)}"
         )
     need = _OBSTACLE_SIZES[ob.kind]
-    if (
-        not isinstance(ob.size, Sequence)
+    if not isinstance(ob.size, np.ndarray) and (
+        not isinstance(ob.size, Iterable)
         or isinstance(ob.size, str)
-        or not need <= len(ob.size) <= 3
-        or not all(_is_real(v) for v in ob.size)
+        or any(isinstance(v, bool | str | bytes) for v in ob.size)
     ):
         raise InvalidParameterError(
-            f"obstacle {i}: size of a {ob.kind} must be "
-            f"{'3' if need == 3 else f'{need} to 3'} numbers, got {ob.size!r}"
+            f"obstacle {i}: the sizes of a {ob.kind} must be a list of numbers, got {ob.size!r}"
         )
-    if not all(np.isfinite(float(v)) and v > 0 for v in ob.size):
+    size = check_array(f"obstacle {i}: size", ob.size, (None,))
+    if not need <= size.size <= 3:
+        raise InvalidParameterError(
+            f"obstacle {i}: a {ob.kind} takes {'3' if need == 3 else f'{need} to 3'} sizes, "
+            f"got {size.size}: {ob.size!r}"
+        )
+    if not np.all(size > 0):
         raise InvalidParameterError(f"obstacle {i}: sizes must be > 0, got {ob.size!r}")
-    return _check_pos_quat(f"obstacle {i}: ", ob.pos, ob.quat)
+    return (size, *_check_pos_quat(f"obstacle {i}: ", ob.pos, ob.quat))
 
 
 def build_planning_scene(
@@ -404,21 +402,22 @@ def build_planning_scene(
             unknown kind, with sizes not 1 (sphere), 2 (capsule) or 3 (box) to 3 positive
             numbers, a non-finite position or a quaternion that is not unit length.
     """
-    if isinstance(obstacles, ObstacleGeom | str | dict) or not isinstance(obstacles, Sequence):
+    if isinstance(obstacles, ObstacleGeom | str | dict) or not isinstance(obstacles, Iterable):
         raise InvalidParameterError(
             f"obstacles must be a list of ObstacleGeom, got {type(obstacles).__name__}"
         )
-    poses = [_check_obstacle(i, ob) for i, ob in enumerate(obstacles)]
+    obstacles = list(obstacles)
+    checked = [_check_obstacle(i, ob) for i, ob in enumerate(obstacles)]
     spec = _robot_at_table(robot) if table else robot_spec(robot)
     spec.modelname = f"{robot}_planning"
-    for i, (ob, (pos, quat)) in enumerate(zip(obstacles, poses, strict=True)):
+    for i, (ob, (size, pos, quat)) in enumerate(zip(obstacles, checked, strict=True)):
         body = spec.worldbody.add_body(
             name=f"obstacle_{i}", pos=pos.tolist(), quat=quat.tolist(), mocap=True
         )
         body.add_geom(
             name=f"obstacle_{i}",
             type=_OBSTACLE_TYPES[ob.kind],
-            size=[*ob.size, *([0.0] * (3 - len(ob.size)))],
+            size=[*size.tolist(), *([0.0] * (3 - size.size))],
             rgba=[1.0, 0.5, 0.1, 0.8],
             contype=STATIC_CONTYPE,
             conaffinity=0,
@@ -469,8 +468,6 @@ def body_clearance(
         InvalidParameterError: ``body1 == body2``, ``cutoff`` not a finite number > 0, or
             ``data`` not made for ``model``.
     """
-    if not _is_real(cutoff):
-        raise InvalidParameterError(f"cutoff must be a number (m), got {cutoff!r}")
     cutoff = check_positive("cutoff", cutoff)
     if data.geom_xpos.shape[0] != model.ngeom or data.qpos.size != model.nq:
         raise InvalidParameterError("data does not belong to model (geom or qpos counts differ)")

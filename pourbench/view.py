@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
 import mujoco
@@ -149,7 +149,8 @@ def world_meshes(
         InvalidParameterError: ``data`` was not made for ``model``, or ``groups`` not integers.
     """
     _check_data(model, data)
-    if not isinstance(groups, Sequence) or not all(
+    groups = list(groups) if isinstance(groups, Iterable) else groups
+    if not isinstance(groups, list) or not all(
         isinstance(x, int | np.integer) and not isinstance(x, bool) for x in groups
     ):
         raise InvalidParameterError(f"groups must be a sequence of integers, got {groups!r}")

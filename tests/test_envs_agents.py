@@ -182,6 +182,13 @@ def test_pd_bad_settings_are_refused(make, words) -> None:
         make()
 
 
+def test_pd_takes_inf_as_no_cap_and_no_stall_rule() -> None:
+    cfg = PDConfig(max_flow=float("inf"), stall_time=float("inf"))
+    assert cfg.max_flow == cfg.stall_time == float("inf")
+    with pytest.raises(ValueError, match="kp must be finite"):
+        PDConfig(kp=float("inf"))
+
+
 def test_sb3_adapter_indices_and_close() -> None:
     """``env_method("reset", indices=[0])`` resets world 0 only; ``set_attr`` and other
     methods take every world or nothing; indices out of range and use after close are

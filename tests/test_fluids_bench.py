@@ -184,20 +184,21 @@ def test_a_report_whose_markdown_path_is_a_folder_keeps_its_json(tmp_path) -> No
 
 
 def test_report_json_is_strict_with_numpy_values_and_nan_as_null(tmp_path) -> None:
-    """NaN / inf are written as null (a missing value, as rows write None); NumPy scalars
-    and arrays as plain numbers."""
+    """NaN is written as null (a missing value, as rows write None), ±inf as "inf" / "-inf"
+    (no obstacle: an infinite clearance, not a missing one); NumPy values as plain numbers."""
     from pourbench.bench._report import write_report
 
     rows = [{"a": np.int64(2), "b": np.float32(0.5), "c": float("nan"), "d": np.array([1, 2])}]
     json_path, md_path = write_report(
-        "s", rows, out=tmp_path, title="t", body_md="b", extra={"x": float("inf")}
+        "s", rows, out=tmp_path, title="t", body_md="b", extra={"x": float("inf"), "y": -np.inf}
     )
 
     def refuse(name):
         raise AssertionError(f"{name} in the JSON")
 
     doc = json.loads(json_path.read_text(), parse_constant=refuse)
-    assert doc["rows"] == [{"a": 2, "b": 0.5, "c": None, "d": [1, 2]}] and doc["x"] is None
+    assert doc["rows"] == [{"a": 2, "b": 0.5, "c": None, "d": [1, 2]}]
+    assert (doc["x"], doc["y"]) == ("inf", "-inf")
     assert md_path.read_text().startswith("# t\n")
     assert not list(tmp_path.glob("*.partial"))
 

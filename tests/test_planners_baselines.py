@@ -351,7 +351,19 @@ def test_offline_settings_are_refused(make, match):
         make()
 
 
-def test_stomp_refuses_a_fractional_seed(mink_setup):
+def test_stomp_seeds(mink_setup):
+    """An integer >= 0, None or a Generator, as numpy takes; a fractional seed is refused."""
     kin = mink_setup[0]
+    args = (kin, [_BOX], kin.home(), kin.home() + 0.3)
+    cfg = StompConfig(max_iters=2)
     with pytest.raises(ValueError, match=r"seed must be an integer, got 1.5"):
-        plan_stomp(kin, [_BOX], kin.home(), kin.home() + 0.3, safety_distance=0.02, seed=1.5)
+        plan_stomp(*args, safety_distance=0.02, seed=1.5)
+    by_int = plan_stomp(*args, safety_distance=0.02, config=cfg, seed=4)
+    by_gen = plan_stomp(*args, safety_distance=0.02, config=cfg, seed=np.random.default_rng(4))
+    np.testing.assert_array_equal(by_int.path, by_gen.path)
+    assert plan_stomp(*args, safety_distance=0.02, config=cfg, seed=None).path.shape[1] == 7
+
+
+def test_planning_world_refuses_zero_radius_obstacles():
+    with pytest.raises(ValueError, match=r"needs a radius > 0"):
+        _arm7_world([Sphere([0.5, 0.0, 1.0], 0.0)])

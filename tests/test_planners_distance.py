@@ -121,10 +121,10 @@ def test_bad_obstacles_raise_value_error():
 @pytest.mark.parametrize(
     ("make", "match"),
     [
-        (lambda: Sphere([0, 0, 0], 0.0), r"sphere radius must be finite and > 0, got 0"),
+        (lambda: Sphere([0, 0, 0], -0.1), r"sphere radius must be >= 0.0, got -0.1"),
         (lambda: Sphere([0, 0, 0], np.nan), r"sphere radius .* got nan"),
         (lambda: Sphere([0, 0, 0], True), r"sphere radius must be a number, got True"),
-        (lambda: Capsule([0, 0, 0], [0, 0, 1], 0.0), r"capsule radius .* > 0, got 0"),
+        (lambda: Capsule([0, 0, 0], [0, 0, 1], -1e-3), r"capsule radius must be >= 0.0"),
         (lambda: Box([0, 0, 0], [0.1] * 3, np.diag([1.0, 1.0, -1.0])), r"det \+1"),
         (lambda: Box([0, 0, 0], [0.1] * 3, np.eye(2)), r"box rotation must be 3x3"),
         (lambda: Box([0, 0, 0], [0.1] * 3, np.full((3, 3), np.nan)), r"box rotation"),
@@ -133,6 +133,15 @@ def test_bad_obstacles_raise_value_error():
 def test_bad_obstacle_parameters_are_refused(make, match):
     with pytest.raises(InvalidParameterError, match=match):
         make()
+
+
+def test_zero_radius_obstacles_are_a_point_and_a_segment():
+    """Radius 0 is geometry the distances take: a point, a segment (the sphere and capsule
+    of radius r are those plus r)."""
+    a, b = np.array([[-0.3, 0.0, 0.0]]), np.array([[0.3, 0.0, 0.0]])
+    point, seg = Sphere([0.0, 0.2, 0.0], 0.0), Capsule([0, 0.5, -1], [0, 0.5, 1], 0.0)
+    sd = capsule_obstacle_distances(a, b, [0.05], [point, seg]).sd
+    np.testing.assert_allclose(sd.ravel(), [0.2 - 0.05, 0.5 - 0.05], atol=1e-12)
 
 
 def test_degenerate_capsule_is_a_sphere():

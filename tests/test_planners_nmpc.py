@@ -214,6 +214,14 @@ def test_bad_config_is_refused_at_construction(kwargs, match):
         NMPCConfig(**kwargs)
 
 
+def test_one_speed_in_a_list_applies_to_every_joint(kin):
+    one = NMPCPlanner(kin, NMPCConfig(max_joint_speed=[0.4]))
+    every = NMPCPlanner(kin, NMPCConfig(max_joint_speed=0.4))
+    q0 = kin.home()
+    args = (q0, kin.ee_pose(q0)[0] + [0.2, 0.0, 0.0], kin.ee_pose(q0)[1])
+    np.testing.assert_array_equal(one.plan(*args).u, every.plan(*args).u)
+
+
 def test_config_that_does_not_fit_the_arm_is_refused(kin, kin_limited):
     with pytest.raises(ValueError, match=r"max_joint_speed must be one number or 7 .* got 2"):
         NMPCPlanner(kin, NMPCConfig(max_joint_speed=(0.6, 0.6)))
@@ -229,9 +237,11 @@ def test_config_that_does_not_fit_the_arm_is_refused(kin, kin_limited):
 @pytest.mark.parametrize(
     ("q0", "goal_pos", "goal_quat", "obstacles", "match"),
     [
-        (np.full(7, np.nan), *_GOAL, (), r"q0 must be 7 finite numbers"),
-        (None, _GOAL[0], np.zeros(4), (), r"goal quaternion .* not all zero"),
-        (None, _GOAL[0], [np.nan] * 4, (), r"goal quaternion must be 4 finite"),
+        (np.full(7, np.nan), *_GOAL, (), r"q0 must be finite"),
+        (np.zeros(6), *_GOAL, (), r"q0 must have shape \(7,\)"),
+        (None, [0.3, 0.0], _GOAL[1], (), r"goal_pos must have shape \(3,\)"),
+        (None, _GOAL[0], np.zeros(4), (), r"goal_quat must not be zero"),
+        (None, _GOAL[0], [np.nan] * 4, (), r"goal_quat must be finite"),
         (None, *_GOAL, [Sphere([0, 0, 2], 0.1), "x"], r"obstacles\[1\] must be a Sphere.*'x'"),
         (None, *_GOAL, Sphere([0, 0, 2], 0.1), r"obstacles must be a sequence of obstacles"),
     ],
@@ -254,7 +264,7 @@ def test_cost_and_constraints_refuses_bad_goal(kin):
     planner = NMPCPlanner(kin, NMPCConfig(ph=4, ch=2))
     U = np.zeros(planner.nU)
     for quat in (np.zeros(4), [np.nan, 0, 0, 1]):
-        with pytest.raises(ValueError, match=r"goal quaternion"):
+        with pytest.raises(ValueError, match=r"goal_quat must (not be zero|be finite)"):
             planner.cost_and_constraints(kin.home(), _GOAL[0], quat, [], U)
     with pytest.raises(ValueError, match=r"U must have shape \(14,\)"):
         planner.cost_and_constraints(kin.home(), *_GOAL, [], U[:3])

@@ -217,6 +217,7 @@ _RNG = np.random.default_rng
         (lambda: SkillCPD(None), "library must be a fitted SkillLibrary"),
         (lambda: closest_step(np.full(2, np.nan), np.zeros((20, 2)), 5, 3), "point"),
         (lambda: closest_step(np.zeros(2), np.zeros((20, 2)), 5, -5), "window must be >= 0"),
+        (lambda: closest_step(np.zeros(2), np.full((20, 2), np.nan), 5, 3), r"NaN .* \[2, 9\)"),
         (lambda: letter_demos("A", -1), "n must be >= 0"),
         (lambda: letter_demos("A", 2.5), "n must be an integer"),
         (lambda: letter_demos("A", 1, seed=1.7), "seed must be an integer"),

@@ -77,10 +77,14 @@ class PDConfig:
     short_margin_g: float = 2.0
 
     def __post_init__(self) -> None:
-        """Every field finite and non-negative; ``control_dt`` and ``stall_time`` > 0, the
-        smoothing weights in (0, 1], ``search_rate`` in [0, 1], ``min_flow <= max_flow``."""
+        """Every field finite and non-negative (``max_flow`` and ``stall_time`` may be inf: no
+        cap, no stall rule); ``control_dt`` and ``stall_time`` > 0, the smoothing weights in
+        (0, 1], ``search_rate`` in [0, 1], ``min_flow <= max_flow``."""
         for f in fields(self):
-            check_finite(f.name, getattr(self, f.name), minimum=0.0)
+            v = getattr(self, f.name)
+            if f.name in ("max_flow", "stall_time") and v == float("inf"):
+                continue
+            check_finite(f.name, v, minimum=0.0)
         for name in ("control_dt", "stall_time"):
             if getattr(self, name) <= 0:
                 raise InvalidParameterError(f"{name} must be > 0, got {getattr(self, name)!r}")

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import numbers
 import os
 import sys
 import time
@@ -60,10 +59,7 @@ class TrainArgs:
         """Every setting checked at construction, before any training: a run that trains is
         not lost to a bad setting its evaluation would meet only at the end."""
         for name in ("budget_s", "target_g", "checkpoint_s"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                raise InvalidParameterError(f"{name} must be a number, got {value!r}")
-            check_positive(name, value)
+            check_positive(name, getattr(self, name))
         for name in ("num_envs", "n_steps", "eval_episodes", "threads"):
             check_int(name, getattr(self, name), minimum=1)
         check_int("seed", self.seed, minimum=0)

@@ -116,16 +116,19 @@ _STEM = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
 
 def _plain(value: Any, where: str) -> Any:
-    """``value`` with NumPy scalars and arrays made plain Python values and NaN / ±inf made
-    ``None`` (JSON ``null``, as a missing value is written), so the file is strict JSON.
+    """``value`` with NumPy scalars and arrays made plain Python values, NaN made ``None``
+    (JSON ``null``, as a missing value is written) and ±inf the strings ``"inf"`` /
+    ``"-inf"`` (e.g. the clearance with no obstacle), so the file is strict JSON.
 
     Raises:
         InvalidParameterError: a value JSON cannot hold (named by ``where``).
     """
     if isinstance(value, np.ndarray | np.generic):
         value = value.tolist()
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
+    if isinstance(value, float):  # JSON has no inf: "inf" / "-inf", and NaN as missing
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return value if value == value else None
     if value is None or isinstance(value, str | bool | int):
         return value
     if isinstance(value, Mapping):
@@ -148,9 +151,9 @@ def write_report(
 
     Everything is checked and both texts are rendered before either file is written, and
     both files are written through temporary siblings and moved into place together, so bad
-    input leaves an earlier pair as it was. NumPy scalars are written as plain numbers and
-    a NaN or infinite value as ``null`` (a missing value, as rows write ``None``), so the
-    JSON is strict.
+    input leaves an earlier pair as it was. NumPy scalars are written as plain numbers, a
+    NaN as ``null`` (a missing value, as rows write ``None``) and ±inf as ``"inf"`` /
+    ``"-inf"``, so the JSON is strict.
 
     Args:
         suite: file stem, e.g. ``"fluids"`` (letters, digits, ``_``, ``-`` and ``.``, no

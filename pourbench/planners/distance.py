@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError
+from pourbench.errors import InvalidParameterError, check_finite
 
 _EPS = 1e-12
 
@@ -33,16 +33,9 @@ def _vec3(name: str, v: object) -> np.ndarray:
     return a
 
 
-def _positive(name: str, v: float) -> float:
-    if isinstance(v, bool | np.bool_):
-        raise InvalidParameterError(f"{name} must be a number, got {v!r}")
-    try:
-        x = float(v)
-    except (TypeError, ValueError) as exc:
-        raise InvalidParameterError(f"{name} must be a number, got {v!r}") from exc
-    if not np.isfinite(x) or x <= 0:
-        raise InvalidParameterError(f"{name} must be finite and > 0, got {v!r}")
-    return x
+def _radius(name: str, v: float) -> float:
+    """A finite radius >= 0 (0: a point or a segment, which the distances handle)."""
+    return check_finite(name, v, minimum=0.0)
 
 
 @dataclass(frozen=True)
@@ -56,7 +49,7 @@ class Sphere:
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _vec3("sphere center", self.center))
         object.__setattr__(self, "velocity", _vec3("sphere velocity", self.velocity))
-        object.__setattr__(self, "radius", _positive("sphere radius", self.radius))
+        object.__setattr__(self, "radius", _radius("sphere radius", self.radius))
 
 
 @dataclass(frozen=True)
@@ -100,7 +93,7 @@ class Capsule:
         object.__setattr__(self, "velocity", _vec3("capsule velocity", self.velocity))
         object.__setattr__(self, "a", _vec3("capsule end a", self.a))
         object.__setattr__(self, "b", _vec3("capsule end b", self.b))
-        object.__setattr__(self, "radius", _positive("capsule radius", self.radius))
+        object.__setattr__(self, "radius", _radius("capsule radius", self.radius))
 
 
 Obstacle = Sphere | Box | Capsule

@@ -24,6 +24,7 @@ from pourbench.errors import (
     check_finite,
     check_int,
     check_positive,
+    check_quat,
 )
 from pourbench.planners.distance import Obstacle
 from pourbench.planners.rollout import rotation_error
@@ -149,10 +150,7 @@ class MinkController:
         n = len(self.qadr)
         q0 = check_array("q0", q0, (n,))
         goal_pos = check_array("goal_pos", goal_pos, (3,))
-        goal_quat = check_array("goal_quat", goal_quat, (4,))
-        if not np.linalg.norm(goal_quat) > 1e-9:
-            raise InvalidParameterError(f"goal_quat must not be zero, got {goal_quat.tolist()}")
-        return q0, goal_pos, goal_quat
+        return q0, goal_pos, check_quat("goal_quat", goal_quat)
 
     def _qpos(self, q: np.ndarray) -> np.ndarray:
         qpos = self.base_qpos.copy()

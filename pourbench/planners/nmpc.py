@@ -41,6 +41,7 @@ from pourbench.errors import (
     check_finite,
     check_int,
     check_positive,
+    check_quat,
 )
 from pourbench.planners.distance import Obstacle, capsule_obstacle_distances, check_obstacles
 from pourbench.planners.kinematics import ArmKinematics, point_jacobian
@@ -102,20 +103,11 @@ class NMPCConfig:
     restoration_tol: float = 1e-4
 
     def __post_init__(self) -> None:
-        floats = (
-            "q_pos", "q_quat", "pf_pos", "pf_quat", "r", "ts", "safety_distance",
-            "step_tol", "merit_rtol", "activation_distance", "joint_limit_margin",
-            "restoration_tol", "time_budget_s",
+        nonnegative = (
+            "q_pos", "q_quat", "pf_pos", "pf_quat", "safety_distance", "step_tol", "merit_rtol",
+            "activation_distance", "joint_limit_margin", "restoration_tol",
         )  # fmt: skip
-        for name in floats:
-            v = getattr(self, name)
-            if isinstance(v, str | bytes | bool | np.bool_):
-                raise InvalidParameterError(f"{name} must be a number, got {v!r}")
-        for name in ("q_pos", "q_quat", "pf_pos", "pf_quat", "safety_distance"):
-            check_finite(name, getattr(self, name), minimum=0.0)
-        for name in ("activation_distance", "joint_limit_margin"):
-            check_finite(name, getattr(self, name), minimum=0.0)
-        for name in ("step_tol", "merit_rtol", "restoration_tol"):
+        for name in nonnegative:
             check_finite(name, getattr(self, name), minimum=0.0)
         check_positive("r", self.r)
         check_positive("ts", self.ts)
@@ -278,7 +270,7 @@ class NMPCPlanner:
             raise InvalidParameterError(f"config must be an NMPCConfig, got {config!r}")
         n = kin.n
         speed_in = np.asarray(config.max_joint_speed, dtype=float)
-        if speed_in.ndim == 1 and speed_in.shape != (n,):
+        if speed_in.ndim == 1 and speed_in.shape not in ((n,), (1,)):
             raise InvalidParameterError(
                 f"max_joint_speed must be one number or {n} (one per joint), "
                 f"got {len(speed_in)}: {config.max_joint_speed!r}"
@@ -386,22 +378,11 @@ class NMPCPlanner:
 
     def _check_problem(self, q0, goal_pos, goal_quat, obstacles):
         """Validated (q0, goal_pos, unit goal_quat, obstacles) of one problem."""
-        try:
-            q0 = np.asarray(q0, dtype=float).reshape(-1)
-            goal_pos = np.asarray(goal_pos, dtype=float).reshape(-1)
-            goal_quat = np.asarray(goal_quat, dtype=float).reshape(-1)
-        except (TypeError, ValueError) as exc:
-            raise InvalidParameterError(f"q0 and the goal must be numbers: {exc}") from exc
-        if q0.shape != (self.n,) or not np.all(np.isfinite(q0)):
-            raise InvalidParameterError(f"q0 must be {self.n} finite numbers, got {q0}")
-        if goal_pos.shape != (3,) or not np.all(np.isfinite(goal_pos)):
-            raise InvalidParameterError(f"goal position must be 3 finite numbers, got {goal_pos}")
-        qn = np.linalg.norm(goal_quat) if goal_quat.shape == (4,) else np.nan
-        if not np.isfinite(qn) or qn < 1e-9:
-            raise InvalidParameterError(
-                f"goal quaternion must be 4 finite numbers, not all zero, got {goal_quat}"
-            )
-        return q0, goal_pos, goal_quat / qn, check_obstacles(obstacles)
+        flat = lambda v: np.ravel(v) if isinstance(v, np.ndarray) else v  # noqa: E731  (n, 1) too
+        q0 = check_array("q0", flat(q0), (self.n,))
+        goal_pos = check_array("goal_pos", flat(goal_pos), (3,))
+        goal_quat = check_quat("goal_quat", flat(goal_quat))
+        return q0, goal_pos, goal_quat / np.linalg.norm(goal_quat), check_obstacles(obstacles)
 
     # ----------------------------------------------------- evaluation (f, ∇f, g, ∇g)
     def _limit_bounds(self, q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

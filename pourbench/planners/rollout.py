@@ -12,7 +12,13 @@ from typing import Protocol
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, check_array, check_finite, check_int
+from pourbench.errors import (
+    InvalidParameterError,
+    check_array,
+    check_finite,
+    check_int,
+    check_quat,
+)
 from pourbench.planners.distance import Obstacle
 from pourbench.planners.kinematics import ArmKinematics
 
@@ -108,10 +114,8 @@ def run_to_goal(
     """
     q = check_array("q0", q0, (kin.n,)).copy()
     goal_pos = check_array("goal_pos", goal_pos, (3,))
-    goal_quat = check_array("goal_quat", goal_quat, (4,))
+    goal_quat = check_quat("goal_quat", goal_quat)
     qnorm = np.linalg.norm(goal_quat)
-    if not qnorm > 1e-9:
-        raise InvalidParameterError(f"goal_quat must not be zero, got {goal_quat.tolist()}")
     ts = check_finite("ts", ts)
     if ts <= 0:
         raise InvalidParameterError(f"ts must be > 0, got {ts!r}")

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 
 from pourbench.errors import InvalidParameterError, UnknownNameError, check_array, check_positive
-from pourbench.planners.distance import Box, Obstacle, Sphere, check_obstacles
+from pourbench.planners.distance import Box, Capsule, Obstacle, Sphere, check_obstacles
 from pourbench.planners.kinematics import check_vector
 
 COLLISION_BIT = 1 << 4
@@ -23,7 +23,16 @@ the world model is only used for kinematics and distance queries, never stepped)
 
 
 def _geom(ob: Obstacle) -> tuple[mujoco.mjtGeom, list[float]]:
-    """MuJoCo geom type and size of an obstacle (a capsule with a == b is a sphere)."""
+    """MuJoCo geom type and size of an obstacle (a capsule with a == b is a sphere).
+
+    Raises:
+        InvalidParameterError: a sphere or capsule of radius 0 (MuJoCo has no such geom;
+            the distance functions of :mod:`~pourbench.planners.distance` take them).
+    """
+    if isinstance(ob, Sphere | Capsule) and ob.radius <= 0.0:
+        raise InvalidParameterError(
+            f"a PlanningWorld obstacle needs a radius > 0 (a MuJoCo geom), got {ob!r}"
+        )
     if isinstance(ob, Sphere):
         return mujoco.mjtGeom.mjGEOM_SPHERE, [ob.radius, 0.0, 0.0]
     if isinstance(ob, Box):
@@ -120,6 +129,7 @@ class PlanningWorld:
         self.robot_geom_ids = [gid(g) for g in robot_geoms]
         self.obstacle_geom_ids = [gid(f"obstacle_{i}") for i in range(len(obstacles))]
         self.static_geom_ids = [gid(g) for g in static_geoms]
+        self._sizes = [tuple(float(v) for v in m.geom_size[g]) for g in self.obstacle_geom_ids]
         self.mocap_ids = [
             m.body_mocapid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"obstacle_{i}")]
             for i in range(len(obstacles))
@@ -153,10 +163,10 @@ class PlanningWorld:
                 raise InvalidParameterError(
                     f"obstacles[{i}] must stay a {self._kinds[i].__name__}, got {ob!r}"
                 )
-            size = self.model.geom_size[self.obstacle_geom_ids[i]]
-            if not np.allclose(_geom(ob)[1], size, rtol=1e-9, atol=1e-12):
+            size = self._sizes[i]  # plain floats: this runs every control step
+            if max(abs(a - b) for a, b in zip(_geom(ob)[1], size, strict=True)) > 1e-9:
                 raise InvalidParameterError(
-                    f"obstacles[{i}] must keep its size (MuJoCo geom size {size.tolist()}); "
+                    f"obstacles[{i}] must keep its size (MuJoCo geom size {list(size)}); "
                     f"got {ob!r}: build a new PlanningWorld for other sizes"
                 )
         self._place(obstacles)

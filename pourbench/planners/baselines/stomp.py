@@ -73,7 +73,7 @@ def plan_stomp(
     *,
     safety_distance: float,
     config: StompConfig | None = None,
-    seed: int = 0,
+    seed: int | np.random.Generator | None = 0,
 ) -> OfflinePlan:
     """Optimise a joint path from ``q_start`` to ``q_goal`` (rad) around ``obstacles``.
 
@@ -82,13 +82,15 @@ def plan_stomp(
     Raises:
         InvalidParameterError: ``q_start``/``q_goal`` not ``kin.n`` finite numbers, a NaN or
             negative ``safety_distance``, an entry of ``obstacles`` that is not one, or a
-            ``seed`` that is not an integer >= 0.
+            ``seed`` that is not an integer >= 0, None or a ``numpy.random.Generator``.
     """
     c = config or StompConfig()
     q_start, q_goal, safety_distance = check_endpoints(kin, q_start, q_goal, safety_distance)
     obstacles = check_obstacles(obstacles)
-    check_int("seed", seed, minimum=0)
-    rng = np.random.default_rng(seed)
+    if isinstance(seed, np.random.Generator):
+        rng = seed
+    else:
+        rng = np.random.default_rng(None if seed is None else check_int("seed", seed, minimum=0))
     t0 = time.perf_counter()
     T = c.waypoints - 2
     A = second_difference_matrix(T)
