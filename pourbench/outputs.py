@@ -36,11 +36,16 @@ def check_output_path(path: str | Path) -> Path:
 
     Raises:
         OutputPathError: the path is not a non-empty path string, contains NUL, ends with a
-            separator or is a folder, or its folder cannot be created or written.
+            separator, is a folder or cannot be looked up (a name too long), or its folder
+            cannot be created or written.
     """
     p = _as_path(path, "output path")
     text = os.fspath(path)
-    if p.is_dir():
+    try:
+        is_dir = p.is_dir()
+    except OSError as exc:  # e.g. a name longer than the file system allows
+        raise OutputPathError(f"output path {text!r}: {exc.strerror or exc}") from exc
+    if is_dir:
         raise OutputPathError(f"output path {str(p)!r} is a folder; give a file name")
     if text.endswith(tuple(s for s in (os.sep, os.altsep) if s)):
         raise OutputPathError(f"output path {text!r} ends with a separator; give a file name")
@@ -73,6 +78,9 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
     out = AtomicOutput(path)
     try:
         out.partial.write_text(text)
+    except OSError as exc:  # a name too long for the file system, a full disk, …
+        out.discard()
+        raise OutputPathError(f"cannot write {str(out.path)!r}: {exc.strerror or exc}") from exc
     except BaseException:
         out.discard()
         raise
@@ -86,6 +94,10 @@ class AtomicOutput:
     def __init__(self, path: str | Path) -> None:
         self.path = check_output_path(path)
         self.partial = self.path.with_name(self.path.name + ".partial")
+        if self.partial.is_dir():  # (a leftover partial file is overwritten)
+            raise OutputPathError(
+                f"{str(self.partial)!r} is a folder: remove it to write {str(self.path)!r}"
+            )
 
     def commit(self) -> Path:
         os.replace(self.partial, self.path)

@@ -184,6 +184,7 @@ def test_run_demo_called_directly_refuses_bad_numbers(tmp_path, kw, words) -> No
         ("", "output path must be a non-empty path"),
         ("od/a\0b", "contains a NUL character"),
         ("od/newdir/", "ends with a separator; give a file name"),
+        ("x" * 300 + ".json", r"output path .x+\.json.: \w"),  # was a bare OSError
     ],
 )
 def test_bad_output_paths_are_refused(tmp_path, monkeypatch, path, words) -> None:
@@ -206,3 +207,13 @@ def test_output_folder_checks(tmp_path, monkeypatch) -> None:
         check_output_folder("a\0b")
     assert check_output_path("new/x.json").parent.is_dir()  # good paths as before
     assert check_output_folder("") == check_output_folder(".")  # the current folder
+
+
+def test_an_atomic_write_whose_partial_sibling_is_a_folder_keeps_the_old_file(tmp_path):
+    from pourbench.outputs import OutputPathError, write_text_atomic
+
+    target = write_text_atomic(tmp_path / "t.json", "old")
+    (tmp_path / "t.json.partial").mkdir()
+    with pytest.raises(OutputPathError, match=r"t\.json\.partial' is a folder"):
+        write_text_atomic(target, "new")
+    assert target.read_text() == "old" and (tmp_path / "t.json.partial").is_dir()
