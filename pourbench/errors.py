@@ -1,4 +1,6 @@
-"""Exception hierarchy. Every error is a ``ValueError`` so callers can catch bad input uniformly."""
+"""Exception hierarchy, and the input checks that raise it (numbers, integers, arrays, poses,
+quaternions, TOML data files). Every error is a ``ValueError`` so callers can catch bad input
+uniformly."""
 
 from __future__ import annotations
 
