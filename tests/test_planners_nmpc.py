@@ -223,7 +223,10 @@ def test_one_speed_in_a_list_applies_to_every_joint(kin):
 
 
 def test_config_that_does_not_fit_the_arm_is_refused(kin, kin_limited):
-    with pytest.raises(ValueError, match=r"max_joint_speed must be one number or 7 .* got 2"):
+    with pytest.raises(
+        ValueError,
+        match=r"max_joint_speed must be one number or 7 \(one per joint\), got \(0.6, 0.6\)",
+    ):
         NMPCPlanner(kin, NMPCConfig(max_joint_speed=(0.6, 0.6)))
     # 2 × 5.0 rad > the 5.6 rad range of j1: no configuration keeps the margin.
     with pytest.raises(ValueError, match=r"joint_limit_margin 5.0 is more than half the range"):

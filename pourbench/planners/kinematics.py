@@ -69,6 +69,26 @@ def check_vector(name: str, value: object, n: int) -> np.ndarray:
     return check_array(name, value, (n,))
 
 
+def joint_speeds(value: object, n: int | None = None) -> np.ndarray:
+    """``max_joint_speed`` (rad/s) as finite numbers > 0: one number or one per joint; with
+    ``n`` (the arm's joints) broadcast to ``n`` values.
+
+    Raises:
+        InvalidParameterError: not numbers, not one value or one per joint, not finite or
+            not > 0.
+    """
+    try:
+        s = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidParameterError(f"max_joint_speed must be numbers, got {value!r}") from exc
+    if s.ndim > 1 or s.size == 0 or (n is not None and s.size not in (1, n)):
+        want = "a number or one per joint" if n is None else f"one number or {n} (one per joint)"
+        raise InvalidParameterError(f"max_joint_speed must be {want}, got {value!r}")
+    if not np.all(np.isfinite(s)) or np.any(s <= 0):
+        raise InvalidParameterError(f"max_joint_speed must be finite and > 0, got {value!r}")
+    return s if n is None else np.broadcast_to(s.reshape(-1), (n,)).copy()
+
+
 def point_jacobian(
     body_pos: np.ndarray, body_jacp: np.ndarray, body_jacr: np.ndarray, point: np.ndarray
 ) -> np.ndarray:

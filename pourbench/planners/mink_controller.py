@@ -27,6 +27,7 @@ from pourbench.errors import (
     check_quat,
 )
 from pourbench.planners.distance import Obstacle
+from pourbench.planners.kinematics import joint_speeds
 from pourbench.planners.rollout import rotation_error
 from pourbench.planners.world import PlanningWorld
 
@@ -97,21 +98,7 @@ class MinkController:
         check_finite("safety_distance", safety_distance, minimum=0.0)
         check_finite("orientation_cost", orientation_cost, minimum=0.0)
         check_finite("posture_cost", posture_cost, minimum=0.0)
-        try:
-            speed_in = np.asarray(max_joint_speed, float)
-        except (TypeError, ValueError) as exc:
-            raise InvalidParameterError(
-                f"max_joint_speed must be numbers, got {max_joint_speed!r}"
-            ) from exc
-        if speed_in.shape not in ((), (len(joints),)):
-            raise InvalidParameterError(
-                f"max_joint_speed must be one number or {len(joints)} (one per joint), "
-                f"got shape {speed_in.shape}"
-            )
-        if not np.all(np.isfinite(speed_in)) or np.any(speed_in <= 0):
-            raise InvalidParameterError(
-                f"max_joint_speed must be finite and > 0, got {max_joint_speed!r}"
-            )
+        speeds = joint_speeds(max_joint_speed, len(joints))
         base = world.data.qpos if base_qpos is None else base_qpos
         base = check_array("base_qpos", base, (m.nq,))
         self.world = world
@@ -129,7 +116,6 @@ class MinkController:
         self.posture.set_target(self.base_qpos)
         frozen = [d for d in range(m.nv) if d not in set(self.dadr.tolist())]
         self.constraints = [mink.DofFreezingTask(m, dof_indices=frozen)] if frozen else []
-        speeds = np.broadcast_to(np.asarray(max_joint_speed, float), (len(joints),))
         obstacle_names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g)
                           for g in world.obstacle_geoms]  # fmt: skip
         self.limits: list = [

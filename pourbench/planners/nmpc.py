@@ -44,7 +44,7 @@ from pourbench.errors import (
     check_quat,
 )
 from pourbench.planners.distance import Obstacle, capsule_obstacle_distances, check_obstacles
-from pourbench.planners.kinematics import ArmKinematics, point_jacobian
+from pourbench.planners.kinematics import ArmKinematics, joint_speeds, point_jacobian
 
 HessianKind = Literal["bfgs", "gauss_newton"]
 HESSIANS: tuple[str, ...] = ("bfgs", "gauss_newton")
@@ -125,20 +125,7 @@ class NMPCConfig:
             )
         if self.hessian not in HESSIANS:
             raise InvalidParameterError(f"hessian must be one of {HESSIANS}, got {self.hessian!r}")
-        try:
-            speed = np.asarray(self.max_joint_speed, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise InvalidParameterError(
-                f"max_joint_speed must be numbers, got {self.max_joint_speed!r}"
-            ) from exc
-        if speed.ndim > 1 or speed.size == 0:
-            raise InvalidParameterError(
-                f"max_joint_speed must be a number or one per joint, got {self.max_joint_speed!r}"
-            )
-        if not np.all(np.isfinite(speed)) or np.any(speed <= 0):
-            raise InvalidParameterError(
-                f"max_joint_speed must be finite and > 0, got {self.max_joint_speed!r}"
-            )
+        joint_speeds(self.max_joint_speed)  # the count is checked against the arm's
 
 
 @dataclass
@@ -269,12 +256,7 @@ class NMPCPlanner:
         if not isinstance(config, NMPCConfig):
             raise InvalidParameterError(f"config must be an NMPCConfig, got {config!r}")
         n = kin.n
-        speed_in = np.asarray(config.max_joint_speed, dtype=float)
-        if speed_in.ndim == 1 and speed_in.shape not in ((n,), (1,)):
-            raise InvalidParameterError(
-                f"max_joint_speed must be one number or {n} (one per joint), "
-                f"got {len(speed_in)}: {config.max_joint_speed!r}"
-            )
+        speed = joint_speeds(config.max_joint_speed, n)
         m = config.joint_limit_margin
         width = kin.upper - kin.lower  # inf for joints without a limit
         bad = np.flatnonzero(width < 2.0 * m)
@@ -290,7 +272,6 @@ class NMPCPlanner:
         c = self.config
         self.n = n
         self.nU = n * c.ch
-        speed = np.broadcast_to(speed_in, (n,)).copy()
         self.u_max = speed
         self.M = horizon_matrix(c.ph, c.ch)
         self.TsM = c.ts * self.M[1:]  # (ph, ch) rows for q_1..q_ph
