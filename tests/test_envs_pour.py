@@ -126,7 +126,8 @@ def test_the_pouring_container_tilts_about_its_rim() -> None:
     assert batch.tilt.max() > 0.1  # the worlds did tilt
     for w in range(3):
         mid = batch.mocap_id[batch.worlds[w].container]
-        pos, quat = batch.datas[w].mocap_pos[mid], batch.datas[w].mocap_quat[mid]
+        data = batch.world_data(w)
+        pos, quat = data.mocap_pos[mid], data.mocap_quat[mid]
         rot = np.zeros(9)
         mujoco.mju_quat2Mat(rot, quat)
         h = batch.rim_height[w]
@@ -262,14 +263,14 @@ def test_bad_settings_and_resets_are_refused_before_anything_changes() -> None:
         ({"seed": 3, "options": {"reset_mask": [True]}}, "reset_mask must be 2 booleans"),
     ]:
         venv.step(np.zeros((2, 2)))
-        steps = [w.steps for w in venv.batch.worlds]
+        steps = venv.batch.steps.tolist()
         with pytest.raises(InvalidParameterError, match=match):
             venv.reset(**bad)
-        assert [w.steps for w in venv.batch.worlds] == steps, "a refused reset reset a world"
-    steps = [w.steps for w in venv.batch.worlds]
+        assert venv.batch.steps.tolist() == steps, "a refused reset reset a world"
+    steps = venv.batch.steps.tolist()
     with pytest.raises(ValueError, match=r"actions must have shape \(2, 2\)"):
         venv.step(np.zeros(4))  # which two numbers are world 1's would be a guess
-    assert [w.steps for w in venv.batch.worlds] == steps, "a refused step stepped a world"
+    assert venv.batch.steps.tolist() == steps, "a refused step stepped a world"
     for make in (PourEnv, lambda **kw: PourVectorEnv(2, **kw)):
         with pytest.raises(InvalidParameterError, match="unknown environment setting 'liquidd'"):
             make(liquidd="water")  # was PourConfig's bare TypeError

@@ -2,7 +2,7 @@
 
 Both front-ends drive this class: :class:`~pourbench.envs.pour.PourEnv` is the batch of one,
 :class:`~pourbench.envs.vector.PourVectorEnv` the batch of N. Each world has its own random
-generator (seeded per world on reset), liquid, pouring container, MjData, weight filter and
+generator (seeded per world on reset), liquid, pouring container, weight filter, noise key and
 episode counters, so world ``k`` of a batch follows the same episode as a batch of one given
 world ``k``'s seed.
 
@@ -10,13 +10,17 @@ Scene: the receiving container (``tray`` by default) stands on a table scale at 
 pouring container is a mocap body. Every candidate pouring container of the chosen set is a
 mocap body in the one MuJoCo model (those not in use in a world are parked far below the
 floor), and each world has one fluid collider for its pouring container whose shell is
-swapped on reset. Poses are set kinematically every physics substep, interpolated between
-control steps.
+swapped on reset. The containers are kinematic: every physics substep the pouring
+containers' poses of all worlds, interpolated between control steps, go to the solver in one
+call. The step does no per-world Python: the scale reading (the liquid's reaction on the
+receiving container, recorded on the solver's device every substep and read back once a
+control step), the sensor noise and filter, the liquid accounting, divergence, collision,
+reward and observation are array operations over the worlds.
 """
 
 from __future__ import annotations
 
-import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -27,7 +31,7 @@ from gymnasium.error import ResetNeeded
 from pourbench.containers import Container, container_names, get_container
 from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, as_actions, handle_actions
 from pourbench.envs.curriculum import Lesson, load_curriculum
-from pourbench.envs.observation import GRAVITY, WeightFilter
+from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
 from pourbench.errors import (
     CapacityError,
@@ -35,6 +39,7 @@ from pourbench.errors import (
     UnknownNameError,
     check_finite,
     check_index,
+    check_int,
     check_positive,
 )
 from pourbench.fluids import (
@@ -42,10 +47,11 @@ from pourbench.fluids import (
     MujocoCoupling,
     PBFSolver,
     SolverConfig,
-    liquid_metrics_all,
     liquid_names,
     liquid_profile,
 )
+from pourbench.fluids.coupling import ReactionLog
+from pourbench.fluids.metrics import count_liquid
 from pourbench.fluids.solver import container_lattice
 from pourbench.scene import TABLE_HALF_XY, TABLE_HEIGHT, body_clearance, build_pour_scene
 
@@ -168,26 +174,31 @@ def _check_range(name: str, value: object, minimum: float | None) -> None:
 
 @dataclass
 class WorldState:
-    """Per-world episode state."""
+    """Per-world episode draws (the counters of every world are arrays of :class:`PourBatch`)."""
 
     rng: np.random.Generator
     liquid: LiquidProfile
     container: str
     target_g: float
     initial_g: float
-    steps: int = 0
-    substeps: int = 0
-    started: bool = False
-    upright_steps: int = 0
-    done: bool = False
 
 
 class PourBatch:
     """``num_worlds`` pouring worlds stepped together (see the module docstring).
 
+    The containers are kinematic: the pouring containers' poses for every world are arrays
+    handed to the solver in one call a substep, and the scale reads the liquid's reaction on
+    the receiving container as the solver sums it (what MuJoCo's force sensor under the
+    container reads when that reaction is applied to it). MuJoCo holds the model; a world's
+    ``MjData`` is made on demand (:meth:`world_data`) for rendering and collision checks.
+
     Args:
         num_worlds: number of worlds.
         config: task settings.
+
+    Raises:
+        CapacityError: the worlds' estimated memory (:func:`estimate_memory`) exceeds what
+            the machine has free; nothing is allocated.
     """
 
     def __init__(self, num_worlds: int = 1, config: PourConfig | None = None) -> None:
@@ -200,7 +211,7 @@ class PourBatch:
             )
         if cfg.liquid is not None:
             _known_liquid(cfg.liquid)
-        self.config, self.n = cfg, int(num_worlds)
+        self.config, self.n = cfg, check_int("num_worlds", num_worlds, minimum=1)
         self.lessons: tuple[Lesson, ...] = load_curriculum(cfg.curriculum)
         self.lesson = 0
         self.set_lesson(cfg.lesson)
@@ -211,6 +222,7 @@ class PourBatch:
                 f"control_hz={cfg.control_hz:g} is above the liquid solver's rate "
                 f"({1.0 / scfg.dt:g} Hz): an environment step is at least one solver step"
             )
+        check_memory(self.n, cfg)  # before anything of the worlds is allocated
         self.substeps = max(1, round(1.0 / (cfg.control_hz * scfg.dt)))
         self.control_dt = self.substeps * scfg.dt
         self.candidates = container_names(cfg.container_set)
@@ -232,27 +244,57 @@ class PourBatch:
             c: int(self.model.body_mocapid[self.model.body(b).id])
             for c, b in self.body_names.items()
         }
-        self.sensor_adr = int(self.model.sensor(scene.scale_force).adr[0])
-        self.datas = [mujoco.MjData(self.model) for _ in range(self.n)]
-        for d in self.datas:
-            self._park_all(d)
-            mujoco.mj_forward(self.model, d)
+        self._data = mujoco.MjData(self.model)  # the scene at rest: every candidate parked
+        self._park_all(self._data)
+        mujoco.mj_forward(self.model, self._data)
         self.target_pos = np.array([0.0, 0.0, TABLE_HEIGHT])
         self.solver = PBFSolver(self.n, scfg)
-        self.coupling = MujocoCoupling(self.solver, self.model, self.datas)
+        # the table and the receiving container never move: every world's colliders take
+        # their poses from the one resting MjData
+        self.coupling = MujocoCoupling(self.solver, self.model, [self._data] * self.n)
         self.coupling.add_geoms(["table_top"])
         self.recv_col = self.coupling.add_container("receiving", self.receiving.shape)
+        recv_body = self.model.body("receiving").id
+        self.recv_slot = np.array([self.coupling.slots[(w, recv_body)] for w in range(self.n)])
+        self.recv_pose = np.array(self.solver.colliders[self.recv_col[0]].pose)
         first = get_container(self.candidates[0])
         self.pour_col = [self.solver.add_container(w, first.shape) for w in range(self.n)]
         self.filter = WeightFilter(
             self.n, cfg.sensor_rate_hz, cfg.sensor_cutoff_hz, noise_n=cfg.sensor_noise_n
         )
         self.history = ErrorHistory(self.n, cfg.reward.window)
-        self.base = np.zeros((self.n, 3))
-        self.tilt = np.zeros(self.n)
-        self.max_tilt = np.zeros(self.n)
-        self.rim_height = np.zeros(self.n)  # of each world's pouring container, m
-        self.worlds: list[WorldState | None] = [None] * self.n
+        self.reactions = ReactionLog(self.solver, self.substeps)
+        # per-candidate geometry (index c of self.candidates)
+        boxes = [get_container(c) for c in self.candidates]
+        self._shapes = [b.shape for b in boxes] + [self.receiving.shape]
+        self._diameter = np.array([b.diameter for b in boxes])
+        self._depth = np.array([b.depth for b in boxes])
+        self._rim = np.array([b.rim_height for b in boxes])
+        self._half = np.maximum(self.receiving.mouth_diameter / 2 - self._diameter / 2, 0.01)
+        self._clearance = _ClearanceCheck(self.model, self._data, self.body_names, "receiving")
+        # per-world state
+        n = self.n
+        self.base = np.zeros((n, 3))
+        self.tilt = np.zeros(n)
+        self.max_tilt = np.zeros(n)
+        self.rim_height = np.zeros(n)  # of each world's pouring container, m
+        self.cidx = np.zeros(n, np.int64)  # each world's pouring container (in candidates)
+        self.steps = np.zeros(n, np.int64)  # environment steps of the episode
+        self.substep_count = np.zeros(n, np.int64)  # physics substeps of the episode
+        self.started = np.zeros(n, bool)
+        self.upright_steps = np.zeros(n, np.int64)
+        self.done = np.zeros(n, bool)
+        self.was_reset = np.zeros(n, bool)
+        self.target_g = np.zeros(n)
+        self.initial_g = np.zeros(n)
+        self.particle_g = np.zeros(n)  # mass of one particle, g
+        self.liquid_obs = np.zeros((n, 5))  # density / 1000, cohesion, tension, viscosity, adhesion
+        self.noise_key = np.zeros(n, np.uint64)
+        self.noise_count = np.zeros(n, np.uint64)
+        self.force_n = np.zeros(n)  # the scale's last noise-free reading (tare 0), N
+        self.liquid_names = np.full(n, "", dtype=object)
+        self.container_names = np.full(n, "", dtype=object)
+        self.worlds: list[WorldState | None] = [None] * n
 
     # ----------------------------------------------------------------------------- setup
 
@@ -271,32 +313,43 @@ class PourBatch:
         n = len(container_lattice(get_container(container).shape, spacing))  # cached
         return n * spacing**3 * 1e3 * density  # g
 
-    def pouring_poses(self, worlds: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        """Body positions (k, 3; m) and quaternions (k, 4; w, x, y, z) of ``worlds``' pouring
-        containers: the base's position, tilted by ``tilt`` about the y axis through the rim's
-        centre, height ``rim_height`` above the base."""
-        w = np.asarray(worlds, int)
-        h, th = self.rim_height[w], self.tilt[w]
-        pos = self.base[w]  # a copy (fancy indexing)
+    def pouring_poses(self, worlds: np.ndarray | list[int] | None = None) -> np.ndarray:
+        """Poses (k, 7: x y z qx qy qz qw; m) of ``worlds``' pouring containers (None: all):
+        the base's position, tilted by ``tilt`` about the y axis through the rim's centre,
+        height ``rim_height`` above the base."""
+        if worlds is None:
+            h, th, pos = self.rim_height, self.tilt, self.base.copy()
+        else:
+            w = np.asarray(worlds, int)
+            h, th, pos = self.rim_height[w], self.tilt[w], self.base[w]  # a copy
         pos[:, 2] += h  # the rim's centre, which the tilt keeps in place
         pos[:, 0] += np.sin(th) * -h
         pos[:, 2] += np.cos(th) * -h
-        quat = np.zeros((len(w), 4))
-        quat[:, 0], quat[:, 2] = np.cos(th / 2), np.sin(th / 2)
-        return pos, quat
+        poses = np.zeros((len(th), 7))
+        poses[:, :3] = pos
+        poses[:, 4], poses[:, 6] = np.sin(th / 2), np.cos(th / 2)
+        return poses
 
-    def _place(self, worlds: list[int]) -> None:
-        """Set the pouring containers' poses (:meth:`pouring_poses`) of ``worlds`` in MuJoCo
-        and in the fluid colliders, the latter in one call."""
-        pos, quat = self.pouring_poses(worlds)
-        for k, w in enumerate(worlds):
-            mid = self.mocap_id[self.worlds[w].container]
-            self.datas[w].mocap_pos[mid] = pos[k]
-            self.datas[w].mocap_quat[mid] = quat[k]
-        # the solver sweeps each collider from its last step's pose to this one
-        poses = np.empty((len(worlds), 7))  # x y z qx qy qz qw
-        poses[:, :3], poses[:, 3:6], poses[:, 6] = pos, quat[:, 1:], quat[:, 0]
-        self.solver.set_collider_poses([self.pour_col[w] for w in worlds], poses)
+    def _place(self, worlds: list[int] | None = None) -> None:
+        """Hand the pouring containers' poses of ``worlds`` (None: all) to the solver in one
+        call (it sweeps each collider from its last step's pose to this one)."""
+        cols = self.pour_col if worlds is None else [self.pour_col[w] for w in worlds]
+        self.solver.set_collider_poses(cols, self.pouring_poses(worlds))
+
+    def world_data(self, world: int) -> mujoco.MjData:
+        """An ``MjData`` of the scene with ``world``'s pouring container at its pose (the
+        other candidates parked), kinematics computed; valid until the next call."""
+        w = check_index("world", world, self.n)
+        if self.worlds[w] is None:
+            raise ResetNeeded(f"world {w} has not been reset")
+        d = self._data
+        self._park_all(d)
+        pose = self.pouring_poses([w])[0]
+        mid = self.mocap_id[self.worlds[w].container]
+        d.mocap_pos[mid] = pose[:3]
+        d.mocap_quat[mid] = [pose[6], *pose[3:6]]
+        mujoco.mj_forward(self.model, d)
+        return d
 
     # ----------------------------------------------------------------------------- reset
 
@@ -394,28 +447,42 @@ class PourBatch:
                 f"(|x|, |y| of the base within {TABLE_HALF_XY} m of the table's centre) or "
                 f"outside 0-{MAX_START_HEIGHT} m above the receiving container's base"
             )
-        # MuJoCo world
-        d = self.datas[world]
-        mujoco.mj_resetData(self.model, d)
-        self._park_all(d)
+        # the world's state
+        c = self.candidates.index(name)
         self.worlds[world] = WorldState(rng, liquid, name, target, 0.0)
         self.base[world], self.tilt[world], self.max_tilt[world] = base, 0.0, 0.0
-        self.rim_height[world] = get_container(name).rim_height
+        self.rim_height[world], self.cidx[world] = self._rim[c], c
+        self.steps[world] = self.substep_count[world] = self.upright_steps[world] = 0
+        self.started[world] = self.done[world] = False
+        self.was_reset[world] = True
+        self.target_g[world] = target
+        self.particle_g[world] = particle_g
+        self.liquid_obs[world] = [
+            liquid.density / 1000.0,
+            liquid.cohesion,
+            liquid.surface_tension,
+            liquid.viscosity,
+            liquid.adhesion,
+        ]
+        self.liquid_names[world], self.container_names[world] = liquid.name, name
+        self.noise_key[world] = rng.integers(0, 2**63, dtype=np.uint64)
+        self.noise_count[world] = 0
+        self.force_n[world] = 0.0
         self._place([world])
-        mujoco.mj_forward(self.model, d)
-        self.coupling.sync()
         # liquid
         self.solver.set_container_shape(self.pour_col[world], get_container(name).shape)
         self.solver.clear_world(world)
         self.solver.set_liquid(world, liquid)
         n = self.solver.fill(world, self.pour_col[world], initial)
-        self.worlds[world].initial_g = n * self.solver.particle_mass(world) * 1e3
-        self.filter.reset(world, float(d.sensordata[self.sensor_adr + 2]))
+        self.initial_g[world] = self.worlds[world].initial_g = n * particle_g
+        self.filter.reset(world, 0.0)  # the empty receiving container weighs 0 g
 
     def flush(self) -> None:
         """Upload pending particle/collider changes now, so the next step sweeps every
         collider from its current pose (keeps a batch's worlds independent of resets)."""
         self.solver.step(0)
+        if self.reactions.slots != max(self.solver.num_body_slots, 1):  # pragma: no cover
+            self.reactions = ReactionLog(self.solver, self.substeps)
 
     # ------------------------------------------------------------------------------ step
 
@@ -440,25 +507,21 @@ class PourBatch:
         cfg = self.config
         a = as_actions(actions, self.n)
         active = np.ones(self.n, bool) if active is None else np.asarray(active, bool)
-        for w in np.flatnonzero(active):
-            st = self.worlds[w]
-            if st is None or st.done:
-                when = "before its first reset" if st is None else "after its episode ended"
-                raise ResetNeeded(f"world {w} was stepped {when}; call reset() first")
+        bad = np.flatnonzero(active & (~self.was_reset | self.done))
+        if len(bad):
+            w = int(bad[0])
+            when = "before its first reset" if not self.was_reset[w] else "after its episode ended"
+            raise ResetNeeded(f"world {w} was stepped {when}; call reset() first")
         a = np.where(active[:, None], a, 0.0)
-        recv = self.receiving
-        pour = [get_container(w.container) for w in self.worlds]
-        half = np.array([max(recv.mouth_diameter / 2 - p.diameter / 2, 0.01) for p in pour])
-        target_g = np.array([w.target_g for w in self.worlds])
         new_base, new_tilt, _ = handle_actions(
             a,
             self.base,
             self.tilt,
             np.broadcast_to(self.target_pos, (self.n, 3)),
-            half,
-            recv.rim_height,
+            self._half[self.cidx],
+            self.receiving.rim_height,
             self.filter.value_g,
-            target_g,
+            self.target_g,
             cfg.tolerance_g,
             self.control_dt,
             cfg.limits,
@@ -467,32 +530,38 @@ class PourBatch:
         if cfg.action_mode == "free":  # keep the base above the table
             new_base[:, 2] = np.maximum(new_base[:, 2], TABLE_HEIGHT)
         old_base, old_tilt = self.base.copy(), self.tilt.copy()
-        dt = self.solver_config.dt
         for k in range(1, self.substeps + 1):
             f = k / self.substeps
             self.base = old_base + f * (new_base - old_base)
             self.tilt = old_tilt + f * (new_tilt - old_tilt)
-            self._place(list(range(self.n)))
-            self.coupling.step(1)
-            for w in self.worlds:
-                w.substeps += 1
-            idx = np.array(
-                [
-                    i
-                    for i, w in enumerate(self.worlds)
-                    if active[i]
-                    and math.floor(w.substeps * dt * cfg.sensor_rate_hz + 1e-9)
-                    > math.floor((w.substeps - 1) * dt * cfg.sensor_rate_hz + 1e-9)
-                ],
-                dtype=int,
-            )
-            if len(idx):
-                force = np.array([self.datas[i].sensordata[self.sensor_adr + 2] for i in idx])
-                noise = np.array([self.worlds[i].rng.standard_normal() for i in idx])
-                self.filter.sample(idx, force, noise)
+            self._place()
+            self.solver.step()
+            self.reactions.record(k - 1)
         self.base, self.tilt = new_base, new_tilt
         self.max_tilt = np.maximum(self.max_tilt, self.tilt)
+        self._sense(active)
         return self._evaluate(active)
+
+    def _sense(self, active: np.ndarray) -> None:
+        """Feed the scale samples due in the last control step to the weight filter: the
+        receiving container's reaction after each substep (one read-back), sampled at
+        ``sensor_rate_hz`` on each world's own episode clock, with its noise."""
+        cfg, dt = self.config, self.solver_config.dt
+        weight = -self.reactions.read()[:, self.recv_slot, 2]  # (substeps, n) N, down = +
+        self.force_n = weight[-1].copy()
+        s = self.substep_count + np.arange(1, self.substeps + 1)[:, None]  # (substeps, n)
+        self.substep_count += self.substeps
+        rate = dt * cfg.sensor_rate_hz
+        due = (np.floor(s * rate + 1e-9) > np.floor((s - 1) * rate + 1e-9)) & active
+        # each due sample's index on its world's noise counter, all drawn in one call
+        nth = self.noise_count + np.cumsum(due, 0).astype(np.uint64) - np.uint64(1)
+        noise = np.zeros(due.shape)
+        noise[due] = counter_normals(np.broadcast_to(self.noise_key, due.shape)[due], nth[due])
+        self.noise_count += due.sum(0).astype(np.uint64)
+        for k in range(self.substeps):
+            idx = np.flatnonzero(due[k])
+            if len(idx):
+                self.filter.sample(idx, weight[k, idx], noise[k, idx])
 
     def _evaluate(
         self, active: np.ndarray
@@ -500,95 +569,242 @@ class PourBatch:
         cfg = self.config
         diverged = self.solver.diverged()
         info = self.measure()
-        collided = np.zeros(self.n, bool)
-        for w in range(self.n):
-            name = self.body_names[self.worlds[w].container]
-            collided[w] = body_clearance(self.model, self.datas[w], name, "receiving") < 0.0
-        for w, st in enumerate(self.worlds):
-            if active[w]:
-                st.steps += 1
-                st.started |= bool(self.max_tilt[w] >= cfg.pour_tilt)
-                upright = st.started and self.tilt[w] <= cfg.upright_tilt
-                st.upright_steps = st.upright_steps + 1 if upright else 0
-        steps = np.array([w.steps for w in self.worlds])
-        started = np.array([w.started for w in self.worlds])
+        collided = self.collided()
+        self.steps += active
+        self.started |= active & (self.max_tilt >= cfg.pour_tilt)
+        upright = self.started & (self.tilt <= cfg.upright_tilt)
+        self.upright_steps = np.where(
+            active, np.where(upright, self.upright_steps + 1, 0), self.upright_steps
+        )
         finished = (
-            started
+            self.started
             & (self.tilt <= cfg.upright_tilt)
             & (
                 (info["in_flight_g"] < cfg.stream_stop_g)
-                | (
-                    np.array([w.upright_steps for w in self.worlds]) * self.control_dt
-                    >= cfg.settle_time - 1e-9
-                )
+                | (self.upright_steps * self.control_dt >= cfg.settle_time - 1e-9)
             )
             & ~collided
             & ~diverged
         )
-        for w in np.flatnonzero(finished & active):
-            self.history.add(int(w), float(info["error_g"][w]))
+        done_now = np.flatnonzero(finished & active)
+        self.history.add(done_now, info["error_g"][done_now])
         avg = self.history.average()
         pouring = self.filter.value_g < info["target_g"] - cfg.tolerance_g
         reward = extrinsic_reward(
             pouring, collided, finished, info["error_g"], avg, cfg.max_steps, cfg.reward
         )
         terminated = (collided | finished) & ~diverged
-        truncated = ((steps >= cfg.max_steps) & ~terminated) | diverged
+        truncated = ((self.steps >= cfg.max_steps) & ~terminated) | diverged
         info["collided"] = collided
         info["sim_diverged"] = diverged
         info["is_success"] = finished & (info["error_g"] <= cfg.reward.success_g)
         info["average_error_g"] = avg
-        for w in np.flatnonzero(terminated | truncated):
-            self.worlds[w].done = True
-        return self.observe(), reward.astype(float), terminated, truncated, info
+        self.done |= terminated | truncated
+        return self.observe(avg), reward.astype(float), terminated, truncated, info
 
     # ------------------------------------------------------------------------------ read
 
+    def collided(self) -> np.ndarray:
+        """(n,) whether each world's pouring container overlaps the receiving one."""
+        return self._clearance.overlapping(self.cidx, self.pouring_poses(), self.was_reset)
+
     def measure(self) -> dict[str, np.ndarray]:
         """Ground-truth liquid accounting and task numbers per world (grams)."""
-        keys = ("poured_g", "spilled_g", "remaining_g", "in_flight_g", "initial_g", "target_g")
-        out = {k: np.zeros(self.n) for k in keys}
-        cups = {w: [self.pour_col[w], self.recv_col[w]] for w in range(self.n)}
-        metrics = liquid_metrics_all(self.solver, cups)  # one read of the particles
-        for (w, st), m in zip(enumerate(self.worlds), metrics, strict=True):
-            out["remaining_g"][w], out["poured_g"][w] = m.inside_g
-            out["spilled_g"][w], out["in_flight_g"][w] = m.spilled_g, m.in_flight_g
-            out["initial_g"][w], out["target_g"][w] = st.initial_g, st.target_g
+        x = self.solver.positions()  # one read of the particles
+        owner = self.solver.worlds()
+        poses = np.empty((self.n, 2, 7))
+        poses[:, 0] = self.pouring_poses()
+        poses[:, 1] = self.recv_pose
+        shape_index = np.stack([self.cidx, np.full(self.n, len(self._shapes) - 1)], 1)
+        inside, spilled, flight = count_liquid(
+            x, owner, self.n, poses, shape_index, self._shapes, self.solver_config.spacing
+        )
+        g = self.particle_g
+        out = {
+            "poured_g": inside[:, 1] * g,
+            "spilled_g": spilled * g,
+            "remaining_g": inside[:, 0] * g,
+            "in_flight_g": flight * g,
+            "initial_g": self.initial_g.copy(),
+            "target_g": self.target_g.copy(),
+        }
         out["error_g"] = np.abs(out["poured_g"] - out["target_g"])
         out["measured_g"] = self.filter.value_g.copy()
-        out["liquid"] = np.array([w.liquid.name for w in self.worlds], dtype=object)
-        out["container"] = np.array([w.container for w in self.worlds], dtype=object)
+        out["liquid"] = self.liquid_names.copy()
+        out["container"] = self.container_names.copy()
         out["tilt"] = self.tilt.copy()
         return out
 
-    def observe(self) -> np.ndarray:
+    def observe(self, average_error_g: np.ndarray | None = None) -> np.ndarray:
         """(n, 12) float32 observations in the thesis' order (see ``PourEnv``)."""
-        obs = np.zeros((self.n, OBS_SIZE))
-        avg = self.history.average()
-        for w, st in enumerate(self.worlds):
-            liq, c = st.liquid, get_container(st.container)
-            weight = self.filter.value_g[w]
-            obs[w] = [
-                liq.density / 1000.0,
-                liq.cohesion,
-                liq.surface_tension,
-                liq.viscosity,
-                liq.adhesion,
-                c.diameter,
-                c.depth,
-                weight,
-                st.target_g,
-                st.target_g - weight,
-                avg[w],
-                self.tilt[w],
-            ]
+        avg = self.history.average() if average_error_g is None else average_error_g
+        weight = self.filter.value_g
+        obs = np.empty((self.n, OBS_SIZE))
+        obs[:, :5] = self.liquid_obs
+        obs[:, 5] = self._diameter[self.cidx]
+        obs[:, 6] = self._depth[self.cidx]
+        obs[:, 7] = weight
+        obs[:, 8] = self.target_g
+        obs[:, 9] = self.target_g - weight
+        obs[:, 10] = avg
+        obs[:, 11] = self.tilt
         obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
         return np.clip(obs, -OBS_BOUND, OBS_BOUND).astype(np.float32)
 
     def weight_g_true(self, world: int) -> float:
-        """Unfiltered, noise-free tared scale reading of ``world``, g."""
-        fz = self.datas[world].sensordata[self.sensor_adr + 2]
-        return float((fz - self.filter.tare_n[world]) / GRAVITY * 1e3)
+        """Unfiltered, noise-free tared scale reading of ``world`` after its last step, g."""
+        w = check_index("world", world, self.n)
+        return float(self.force_n[w] / GRAVITY * 1e3)
+
+
+class _ClearanceCheck:
+    """Which worlds' pouring containers overlap the receiving container, for all worlds.
+
+    Bounding spheres (of each body, then of each geom pair) are compared as arrays over the
+    worlds; only worlds whose geoms' spheres overlap get MuJoCo's exact geom distances
+    (:func:`~pourbench.scene.body_clearance`), in the one ``MjData``.
+    """
+
+    def __init__(
+        self, model: mujoco.MjModel, data: mujoco.MjData, bodies: dict[str, str], other: str
+    ) -> None:
+        self.model, self.data = model, data
+        self.names = list(bodies.values())
+        self.mocap = [int(model.body_mocapid[model.body(b).id]) for b in self.names]
+        self.other = other
+        rid = model.body(other).id
+        rg = np.flatnonzero(model.geom_bodyid == rid)
+        self.r_pos = data.geom_xpos[rg].copy()  # the receiving body never moves
+        self.r_rad = model.geom_rbound[rg].copy()
+        self.r_centre, self.r_radius = _enclosing(self.r_pos, self.r_rad)
+        self.local: list[tuple[np.ndarray, np.ndarray, np.ndarray, float]] = []
+        for b in self.names:
+            g = np.flatnonzero(model.geom_bodyid == model.body(b).id)
+            pos, rad = model.geom_pos[g].copy(), model.geom_rbound[g].copy()
+            centre, radius = _enclosing(pos, rad)
+            self.local.append((pos, rad, centre, radius))
+
+    def overlapping(self, cidx: np.ndarray, poses: np.ndarray, live: np.ndarray) -> np.ndarray:
+        """(n,) overlap flags of the worlds whose pouring container is candidate ``cidx``
+        at ``poses`` (n, 7: x y z qx qy qz qw); worlds not ``live`` read False."""
+        out = np.zeros(len(cidx), bool)
+        rot = _rotations(poses[:, 3:])
+        for c in np.unique(cidx[live]):
+            pos, rad, centre, radius = self.local[c]
+            rows = np.flatnonzero(live & (cidx == c))
+            mid = poses[rows, :3] + rot[rows] @ centre
+            near = np.linalg.norm(mid - self.r_centre, axis=1) < radius + self.r_radius + _SLACK
+            rows = rows[near]
+            if not len(rows):
+                continue
+            xg = poses[rows, None, :3] + np.einsum("wij,gj->wgi", rot[rows], pos)
+            gap = np.linalg.norm(xg[:, :, None] - self.r_pos[None, None], axis=3)
+            gap -= rad[None, :, None] + self.r_rad[None, None]
+            for w in rows[(gap < _SLACK).any(axis=(1, 2))]:
+                out[w] = self._exact(c, poses[w]) < 0.0
+        return out
+
+    def _exact(self, c: int, pose: np.ndarray) -> float:
+        d = self.data
+        d.mocap_pos[self.mocap[c]] = pose[:3]
+        d.mocap_quat[self.mocap[c]] = [pose[6], *pose[3:6]]
+        mujoco.mj_kinematics(self.model, d)
+        try:
+            return body_clearance(self.model, d, self.names[c], self.other)
+        finally:
+            d.mocap_pos[self.mocap[c]] = _PARK + np.array([0.5 * c, 0.0, 0.0])
+            d.mocap_quat[self.mocap[c]] = [1.0, 0.0, 0.0, 0.0]
+            mujoco.mj_kinematics(self.model, d)
+
+
+_SLACK = 1e-6  # m: bounding spheres this close go to the exact check
+
+
+def _enclosing(pos: np.ndarray, rad: np.ndarray) -> tuple[np.ndarray, float]:
+    """A sphere (centre, radius) holding every sphere (pos[i], rad[i])."""
+    centre = pos.mean(0) if len(pos) else np.zeros(3)
+    radius = float(np.max(np.linalg.norm(pos - centre, axis=1) + rad)) if len(pos) else 0.0
+    return centre, radius
+
+
+def _rotations(q: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotation matrices of (n, 4) unit quaternions (qx, qy, qz, qw)."""
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        1,
+    )
+
+
+_HOST_BYTES_PER_PARTICLE = 250  # host copies: the solver's staging and a step's read-back
+_DEVICE_BYTES_PER_PARTICLE = 400  # the solver's per-particle arrays besides the lists
+_BYTES_PER_LISTED_NEIGHBOUR = {"half": 16, "full": 4}  # list entries (and half's pair cache)
+_BYTES_PER_WORLD = 32 * 1024  # colliders, generator, filter and episode state
+
+
+def estimate_memory(num_worlds: int, config: PourConfig | None = None) -> tuple[int, int]:
+    """Upper estimate of the memory ``num_worlds`` worlds take, bytes: (host, device); on the
+    CPU both are host memory. Each world is counted at its largest pouring container full
+    (the most liquid a reset can ask for)."""
+    cfg = config or PourConfig()
+    scfg = cfg.solver or default_solver_config()
+    worlds = check_int("num_worlds", num_worlds, minimum=1)
+    most = max(
+        len(container_lattice(get_container(c).shape, scfg.spacing))
+        for c in container_names(cfg.container_set)
+    )
+    mode = scfg.pair_lists
+    if mode == "auto":
+        mode = "half" if scfg.device == "cpu" else "full"
+    per_particle = _DEVICE_BYTES_PER_PARTICLE + _BYTES_PER_LISTED_NEIGHBOUR[mode] * int(
+        scfg.max_neighbours
+    )
+    particles = worlds * most
+    host = particles * _HOST_BYTES_PER_PARTICLE + worlds * _BYTES_PER_WORLD
+    return host, particles * per_particle
+
+
+def available_memory(device: str = "cpu") -> int:
+    """Free memory (bytes) of the host (``"cpu"``) or of a CUDA device."""
+    if device != "cpu":
+        import warp as wp
+
+        return int(wp.get_device(device).free_memory)
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+
+
+def check_memory(num_worlds: int, config: PourConfig | None = None) -> None:
+    """Refuse ``num_worlds`` worlds whose :func:`estimate_memory` exceeds the free memory.
+
+    Raises:
+        CapacityError: with the estimate and what is free.
+    """
+    cfg = config or PourConfig()
+    device = (cfg.solver or default_solver_config()).device
+    host, dev = estimate_memory(num_worlds, cfg)
+    if device == "cpu":
+        host, dev = host + dev, 0
+    checks = [("host", host, available_memory("cpu"))]
+    if dev:
+        checks.append((device, dev, available_memory(device)))
+    for where, need, free in checks:
+        if need > free:
+            raise CapacityError(
+                f"num_envs={num_worlds} does not fit: about {need / 2**30:.3g} GiB of {where} "
+                f"memory estimated ({need / num_worlds / 2**20:.3g} MiB a world at its largest "
+                f"pouring container full), {free / 2**30:.3g} GiB free"
+            )
 
 
 OBS_BOUND = 1e4

@@ -7,6 +7,11 @@ goes through a 2nd-order Butterworth low-pass (1 Hz cut-off) designed with
 sections' transposed direct form II (the recurrence :func:`scipy.signal.sosfilt` computes,
 written out here because sosfilt's checks cost ~70 µs a call, a twentieth of a Pour-v0 step,
 for one sample).
+
+The noise of world ``k``'s ``i``-th sample is :func:`counter_normals` of the world's key
+(drawn from its generator at reset) and ``i``: a pure function of the two, so every world's
+noise is drawn in one array operation and does not depend on which other worlds share its
+batch or process.
 """
 
 from __future__ import annotations
@@ -15,6 +20,32 @@ import numpy as np
 from scipy import signal
 
 GRAVITY = 9.81
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+def _mix64(z: np.ndarray) -> np.ndarray:
+    """SplitMix64's finaliser over a uint64 array (wrapping arithmetic)."""
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+def counter_normals(key: np.ndarray, counter: np.ndarray) -> np.ndarray:
+    """Standard-normal draws, element ``i`` a pure function of ``(key[i], counter[i])``.
+
+    Two SplitMix64 hashes of the pair give two uniforms, Box-Muller turns them into one
+    normal. Same shapes in and out; uint64 inputs.
+    """
+    key = np.asarray(key, np.uint64)
+    c = np.asarray(counter, np.uint64) * np.uint64(2)
+    with np.errstate(over="ignore"):
+        base = _mix64(key + _GOLDEN)
+        h1 = _mix64(base ^ (c * _GOLDEN + _GOLDEN))
+        h2 = _mix64(base ^ ((c + np.uint64(1)) * _GOLDEN + _GOLDEN))
+    scale = 2.0**-53
+    u1 = ((h1 >> np.uint64(11)).astype(np.float64) + 1.0) * scale  # (0, 1]
+    u2 = (h2 >> np.uint64(11)).astype(np.float64) * scale  # [0, 1)
+    return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
 
 
 class WeightFilter:

@@ -191,7 +191,7 @@ def render_world(batch: PourBatch, world: int, renderer: mujoco.Renderer) -> np.
     cam.distance, cam.azimuth, cam.elevation = 0.75, 90.0, -20.0
     opt = mujoco.MjvOption()
     opt.sitegroup[:] = 0
-    renderer.update_scene(batch.datas[world], camera=cam, scene_option=opt)
+    renderer.update_scene(batch.world_data(world), camera=cam, scene_option=opt)
     scene = renderer.scene
     for g in scene.geoms[: scene.ngeom]:  # see-through containers (the only meshes)
         if g.type == mujoco.mjtGeom.mjGEOM_MESH:

@@ -9,7 +9,6 @@ bonus). When an episode ends normally: ``+1`` if its pouring error is at most ``
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,16 +67,21 @@ def extrinsic_reward(
 
 class ErrorHistory:
     """Per-world errors of the last ``window`` completed episodes (the thesis' Avg. Pouring
-    Error, §6.5.1)."""
+    Error, §6.5.1), kept as a (worlds, window) ring buffer."""
 
     def __init__(self, num_worlds: int, window: int = 10) -> None:
         self.window = int(window)
-        self.errors = [deque(maxlen=self.window) for _ in range(num_worlds)]
+        self.errors = np.zeros((num_worlds, self.window))
+        self.count = np.zeros(num_worlds, np.int64)  # episodes recorded per world
 
-    def add(self, world: int, error_g: float) -> None:
-        """Record a completed episode's error (g)."""
-        self.errors[world].append(float(error_g))
+    def add(self, world: int | np.ndarray, error_g: float | np.ndarray) -> None:
+        """Record completed episodes' errors (g): one world or an array of distinct worlds."""
+        w = np.atleast_1d(np.asarray(world, np.int64))
+        e = np.broadcast_to(np.asarray(error_g, float), w.shape)
+        self.errors[w, self.count[w] % self.window] = e
+        self.count[w] += 1
 
     def average(self) -> np.ndarray:
         """(n,) average error per world, g (0 before any completed episode)."""
-        return np.array([float(np.mean(e)) if e else 0.0 for e in self.errors])
+        filled = np.minimum(self.count, self.window)
+        return self.errors.sum(1) / np.maximum(filled, 1)

@@ -14,8 +14,10 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+import warp as wp
 
 from pourbench.errors import InvalidParameterError, check_array, check_index, check_int
+from pourbench.fluids import kernels as K
 from pourbench.fluids.meshes import convex_hull
 from pourbench.fluids.shapes import ContainerShape
 from pourbench.fluids.solver import PBFSolver, shape_kind
@@ -254,3 +256,30 @@ class MujocoCoupling:
             self.sync()
             self.solver.step()
             self.apply()
+
+
+class ReactionLog:
+    """The liquid's reaction force on every body slot after each of ``steps`` solver steps,
+    kept on the solver's device and read back in one copy.
+
+    Call :meth:`record` (k) right after the solver's k-th step of a batch of ``steps``, then
+    :meth:`read` once. Recording is a device-side copy of the solver's reaction table (no
+    synchronisation), so it can sit in a captured sequence of launches.
+    """
+
+    def __init__(self, solver: PBFSolver, steps: int) -> None:
+        self.solver = solver
+        self.steps = check_int("steps", steps, minimum=1)
+        self.slots = max(solver.num_body_slots, 1)
+        self._log = wp.zeros(self.steps * self.slots * 3, dtype=wp.int64, device=solver.device)
+
+    def record(self, k: int) -> None:
+        """Keep the reaction table of the solver's last step as entry ``k`` (0-based)."""
+        table = self.solver.cols.force  # (slots, 3) in K.WRENCH_UNIT, rebuilt on upload
+        m = self.slots * 3
+        wp.copy(self._log, table.flatten(), dest_offset=k * m, count=m)
+
+    def read(self) -> np.ndarray:
+        """(steps, slots, 3) reaction forces on the bodies, N (one device read)."""
+        log = self._log.numpy().reshape(self.steps, self.slots, 3)
+        return log * float(K.WRENCH_UNIT)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pourbench.errors import InvalidParameterError, check_index
+from pourbench.fluids.shapes import ContainerShape
 from pourbench.fluids.solver import PBFSolver, inverse_transform_points
 
 
@@ -71,31 +72,23 @@ def liquid_metrics_all(
             f"{np.shape(x_all)}"
         )
     slices = [solver.world_slice(w) for w in worlds]
-    counts = np.array([s.stop - s.start for s in slices])
+    counts = np.array([s.stop - s.start for s in slices], int)
     x = np.concatenate([x_all[s] for s in slices]) if worlds else np.zeros((0, 3))
     owner = np.repeat(np.arange(len(worlds)), counts)  # row of each particle's world
-    free = np.ones(len(x), bool)
-    inside = np.zeros((len(worlds), len(cups[0]) if cups else 0), int)
-    spill_level = np.full(len(worlds), np.inf)
-    margin = solver.config.spacing
-    for k in range(inside.shape[1]):
-        cols = [solver.colliders[cs[k]] for cs in cups]
-        poses = np.array([col.pose for col in cols])
-        groups: dict[int, list[int]] = {}  # shape (by identity) -> rows of the worlds using it
-        for row, col in enumerate(cols):
-            groups.setdefault(id(col.shape), []).append(row)
-        for rows in groups.values():
-            shape = cols[rows[0]].shape
-            sel = np.flatnonzero(np.isin(owner, rows))
-            local = inverse_transform_points(poses[owner[sel]], x[sel])
-            mask = shape.contains(local, margin=margin) & free[sel]
-            free[sel[mask]] = False
-            inside[:, k] += np.bincount(owner[sel[mask]], minlength=len(worlds))
-        bottom = np.array([col.pose[2] + col.shape.bottom_z for col in cols])
-        spill_level = np.minimum(spill_level, bottom)
-    spilled = free & (x[:, 2] < spill_level[owner])
-    n_spilled = np.bincount(owner[spilled], minlength=len(worlds))
-    n_flight = np.bincount(owner[free & ~spilled], minlength=len(worlds))
+    k = len(cups[0]) if cups else 0
+    cols = [[solver.colliders[c] for c in cs] for cs in cups]
+    poses = np.array([[col.pose for col in cs] for cs in cols]).reshape(len(worlds), k, 7)
+    shapes: list = []
+    index: dict[int, int] = {}
+    shape_index = np.zeros((len(worlds), k), int)
+    for row, cs in enumerate(cols):
+        for j, col in enumerate(cs):
+            shape_index[row, j] = index.setdefault(id(col.shape), len(shapes))
+            if shape_index[row, j] == len(shapes):
+                shapes.append(col.shape)
+    inside, n_spilled, n_flight = count_liquid(
+        x, owner, len(worlds), poses, shape_index, shapes, solver.config.spacing
+    )
     out = []
     for row, w in enumerate(worlds):
         m_g = solver.particle_mass(w) * 1e3
@@ -109,3 +102,47 @@ def liquid_metrics_all(
             )
         )
     return out
+
+
+def count_liquid(
+    x: np.ndarray,
+    owner: np.ndarray,
+    num_worlds: int,
+    poses: np.ndarray,
+    shape_index: np.ndarray,
+    shapes: Sequence[ContainerShape],
+    margin: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Particle counts inside each container, spilled and in flight, for every world at once.
+
+    Args:
+        x: (P, 3) particle positions, m.
+        owner: (P,) world (row) of each particle, in [0, num_worlds).
+        poses: (num_worlds, k, 7) container poses (x y z qx qy qz qw).
+        shape_index: (num_worlds, k) index of each container's shape in ``shapes``.
+        shapes: the distinct shapes; each is tested once for all the containers using it.
+        margin: how far above the rim a particle still counts as inside, m.
+
+    Returns:
+        inside (num_worlds, k), spilled (num_worlds,), in flight (num_worlds,) counts; a
+        particle counts in the first container (in ``k`` order) that holds it.
+    """
+    free = np.ones(len(x), bool)
+    k = shape_index.shape[1]
+    inside = np.zeros((num_worlds, k), int)
+    spill_level = np.full(num_worlds, np.inf)
+    bottom_z = np.array([s.bottom_z for s in shapes], float)
+    for j in range(k):
+        used = shape_index[:, j]
+        for s in np.unique(used):
+            rows = np.flatnonzero(used == s)
+            sel = np.flatnonzero(np.isin(owner, rows))
+            local = inverse_transform_points(poses[owner[sel], j], x[sel])
+            mask = shapes[s].contains(local, margin=margin) & free[sel]
+            free[sel[mask]] = False
+            inside[:, j] += np.bincount(owner[sel[mask]], minlength=num_worlds)
+        spill_level = np.minimum(spill_level, poses[:, j, 2] + bottom_z[used])
+    spilled = free & (x[:, 2] < spill_level[owner])
+    n_spilled = np.bincount(owner[spilled], minlength=num_worlds)
+    n_flight = np.bincount(owner[free & ~spilled], minlength=num_worlds)
+    return inside, n_spilled, n_flight
