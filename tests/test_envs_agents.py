@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from world_probes import poison
 
 from pourbench.agents.pd import TARGET, TILT, WEIGHT, PDConfig, PDPourer
 
@@ -107,7 +108,7 @@ def test_sb3_adapter() -> None:
 
     from pourbench.agents.sb3 import SB3PourVecEnv
 
-    venv = SB3PourVecEnv(2, seed=0, liquid="water", max_steps=3)
+    venv = SB3PourVecEnv(2, seed=0, liquid="water", max_steps=3, workers=2)
     obs = venv.reset()
     assert obs.shape == (2, 12)
     for _ in range(3):
@@ -117,11 +118,8 @@ def test_sb3_adapter() -> None:
     for info in infos:
         assert info["terminal_observation"].shape == (12,)
         assert info["TimeLimit.truncated"]
-    # one world ends (a diverged simulation), the other goes on
-    solver = venv.venv.batch.solver
-    x = solver.positions()
-    x[solver.world_slice(0)][:3] = np.nan
-    solver.x.assign(x.astype(np.float32))
+    # one world ends (a diverged simulation, in the parent's group), the other goes on
+    venv.venv.call_world(0, poison)
     venv.step_async(np.zeros((2, 2), np.float32))
     obs, _, done, infos = venv.step_wait()
     assert done.tolist() == [True, False]

@@ -46,7 +46,7 @@ def test_scale_reading_is_the_mujoco_force_sensor_of_the_same_scene() -> None:
 def test_collision_flags_equal_mujoco_clearance_per_world() -> None:
     """The batched overlap check (bounding spheres over all worlds, exact distances where
     they overlap) gives body_clearance's verdict in each world, near and far from the tray."""
-    venv = PourVectorEnv(24, container_set="training")
+    venv = PourVectorEnv(24, container_set="training", workers=1)
     venv.reset(seed=5)
     batch = venv.batch
     rng = np.random.default_rng(1)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from gymnasium.error import ResetNeeded
 from gymnasium.utils.env_checker import check_env
+from world_probes import poison, world_steps
 
 import pourbench  # noqa: F401  (registers the ids)
 from pourbench.envs.action_handler import ActionLimits
@@ -118,7 +119,7 @@ def test_the_pouring_container_tilts_about_its_rim() -> None:
     fluid's collider has the MuJoCo body's pose, in every world of a batch."""
     import mujoco
 
-    venv = PourVectorEnv(3)
+    venv = PourVectorEnv(3, workers=1)
     venv.reset(seed=2, options={"start": ABOVE})  # above the receiving tray: tilting allowed
     batch = venv.batch
     for _ in range(4):
@@ -184,20 +185,22 @@ def test_collision_ends_episode_with_penalty() -> None:
     assert rew <= -1.0
 
 
-def test_diverged_world_truncates_and_resets() -> None:
-    venv = PourVectorEnv(2, liquid="water")
+@pytest.mark.parametrize("workers", [1, 2])
+def test_diverged_world_truncates_and_resets(workers: int) -> None:
+    """A NaN-injected world, one in each worker's group, truncates with sim_diverged and is
+    reset at the next step; its neighbours go on."""
+    venv = PourVectorEnv(4, liquid="water", workers=workers)
     venv.reset(seed=0)
-    solver = venv.batch.solver
-    x = solver.positions()
-    x[solver.world_slice(0)][:5] = np.nan
-    solver.x.assign(x.astype(np.float32))
-    obs, rew, term, trunc, info = venv.step(np.zeros((2, 2)))
-    assert trunc[0] and not term[0] and info["sim_diverged"][0]
-    assert not trunc[1] and not info["sim_diverged"][1]
+    for w in (1, 2):  # worlds 0-1 and 2-3 are the groups with 2 workers
+        venv.call_world(w, poison)
+    obs, rew, term, trunc, info = venv.step(np.zeros((4, 2)))
+    assert trunc.tolist() == [False, True, True, False] and not term.any()
+    assert info["sim_diverged"].tolist() == [False, True, True, False]
     assert np.all(np.isfinite(obs))
-    obs, rew, term, trunc, info = venv.step(np.zeros((2, 2)))  # autoreset of world 0
-    assert not trunc[0] and not info["sim_diverged"][0] and rew[0] == 0.0
-    assert np.all(np.isfinite(solver.positions()))
+    obs, rew, term, trunc, info = venv.step(np.zeros((4, 2)))  # autoreset of worlds 1, 2
+    assert not trunc.any() and not info["sim_diverged"].any() and rew[1] == rew[2] == 0.0
+    assert np.all(np.isfinite(obs))
+    venv.close()
 
 
 def test_bad_input() -> None:
@@ -252,7 +255,7 @@ def test_bad_settings_and_resets_are_refused_before_anything_changes() -> None:
     env = PourEnv()
     with pytest.raises(InvalidParameterError, match="lesson must be an integer"):
         env.set_lesson(1.7)
-    venv = PourVectorEnv(2)
+    venv = PourVectorEnv(2, workers=2)
     with pytest.raises(InvalidParameterError, match="world 1 unreset, and it was never reset"):
         venv.reset(seed=0, options={"reset_mask": [True, False]})
     venv.reset(seed=0)
@@ -263,14 +266,14 @@ def test_bad_settings_and_resets_are_refused_before_anything_changes() -> None:
         ({"seed": 3, "options": {"reset_mask": [True]}}, "reset_mask must be 2 booleans"),
     ]:
         venv.step(np.zeros((2, 2)))
-        steps = venv.batch.steps.tolist()
+        steps = [venv.call_world(k, world_steps) for k in range(2)]
         with pytest.raises(InvalidParameterError, match=match):
             venv.reset(**bad)
-        assert venv.batch.steps.tolist() == steps, "a refused reset reset a world"
-    steps = venv.batch.steps.tolist()
+        assert [venv.call_world(k, world_steps) for k in range(2)] == steps, "reset a world"
     with pytest.raises(ValueError, match=r"actions must have shape \(2, 2\)"):
         venv.step(np.zeros(4))  # which two numbers are world 1's would be a guess
-    assert venv.batch.steps.tolist() == steps, "a refused step stepped a world"
+    assert [venv.call_world(k, world_steps) for k in range(2)] == steps, "stepped a world"
+    venv.close()
     for make in (PourEnv, lambda **kw: PourVectorEnv(2, **kw)):
         with pytest.raises(InvalidParameterError, match="unknown environment setting 'liquidd'"):
             make(liquidd="water")  # was PourConfig's bare TypeError

@@ -31,11 +31,15 @@ class SB3PourVecEnv(VecEnv):
     Args:
         num_envs: number of worlds.
         seed: base seed (world ``k`` gets ``seed + k``); None for fresh entropy.
+        workers: processes the worlds are spread over (None: one per core, at most one per
+            world; see :class:`~pourbench.envs.vector.PourVectorEnv`).
         **kwargs: fields of :class:`~pourbench.envs.core.PourConfig`.
     """
 
-    def __init__(self, num_envs: int = 1, seed: int | None = None, **kwargs: Any) -> None:
-        self.venv = PourVectorEnv(num_envs, autoreset_mode="same_step", **kwargs)
+    def __init__(
+        self, num_envs: int = 1, seed: int | None = None, workers: int | None = None, **kwargs: Any
+    ) -> None:
+        self.venv = PourVectorEnv(num_envs, autoreset_mode="same_step", workers=workers, **kwargs)
         super().__init__(
             num_envs, self.venv.single_observation_space, self.venv.single_action_space
         )

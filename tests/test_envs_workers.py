@@ -1,0 +1,113 @@
+"""The vector env's worker processes: world k gives the same numbers for any number of
+workers (and those of the single env with seed + k, autoresets included), a dead worker
+raises in the parent, close ends every worker."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from world_probes import positions
+
+import pourbench  # noqa: F401  (registers the ids)
+from pourbench.envs.pour import PourEnv
+from pourbench.envs.vector import PourVectorEnv
+from pourbench.envs.workers import WorkerError, default_workers, split
+from pourbench.errors import InvalidParameterError
+
+ABOVE = (-0.02, 0.0, 0.12)
+N, SEED, STEPS, MAX_STEPS = 3, 21, 13, 5  # every world truncates twice: two autoresets
+
+
+def _vector_rollout(workers: int, mode: str, actions: np.ndarray) -> list:
+    venv = gym.make_vec(
+        "pourbench/Pour-v0",
+        num_envs=N,
+        vectorization_mode="vector_entry_point",
+        workers=workers,
+        autoreset_mode=mode,
+        max_steps=MAX_STEPS,
+    )
+    assert isinstance(venv, PourVectorEnv) and venv.workers == workers
+    out = [venv.reset(seed=SEED, options={"start": ABOVE})]
+    out += [venv.step(a) for a in actions]
+    out.append(venv.call_world(N - 1, positions))
+    venv.close()
+    return out
+
+
+def _assert_same(a: object, b: object) -> None:
+    if isinstance(a, dict):
+        assert a.keys() == b.keys()
+        for k in a:
+            _assert_same(a[k], b[k])
+    elif isinstance(a, tuple | list):
+        assert len(a) == len(b)
+        for x, y in zip(a, b, strict=True):
+            _assert_same(x, y)
+    elif isinstance(a, np.ndarray) and a.dtype == object:
+        for x, y in zip(a, b, strict=True):
+            _assert_same(x, y)
+    else:
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("mode", ["next_step", "same_step"])
+def test_world_k_is_the_same_for_any_number_of_workers(mode: str) -> None:
+    actions = np.random.default_rng(0).uniform(-1, 1, (STEPS, N, 2))
+    actions[:, 0] = [1.0, 0.0]  # world 0 pours
+    one = _vector_rollout(1, mode, actions)
+    for workers in (2, 3):
+        _assert_same(_vector_rollout(workers, mode, actions), one)
+    if mode == "same_step":
+        return
+    # ... and world k is the single env given seed + k, through its autoresets
+    k = N - 1
+    env = PourEnv(max_steps=MAX_STEPS)
+    obs, _ = env.reset(seed=SEED + k, options={"start": ABOVE})
+    np.testing.assert_array_equal(obs, one[0][0][k])
+    done = False
+    for t in range(STEPS):
+        if done:  # next-step autoreset: the vector env resets the world, ignoring the action
+            obs, _ = env.reset()
+            rew, done = 0.0, False
+        else:
+            obs, rew, term, trunc, _ = env.step(actions[t, k])
+            done = term or trunc
+        np.testing.assert_array_equal(obs, one[t + 1][0][k])
+        assert rew == one[t + 1][1][k]
+    # the same liquid (the particles' storage order follows the solver's re-sort schedule,
+    # which counts the steps the vector env's world held still before its autoresets)
+    x, y = env.unwrapped.batch.solver.positions(), one[-1]
+    np.testing.assert_array_equal(x[np.lexsort(x.T)], y[np.lexsort(y.T)])
+
+
+def test_a_dead_worker_raises_in_the_parent_and_close_ends_every_worker() -> None:
+    venv = PourVectorEnv(3, workers=3, liquid="water")
+    venv.reset(seed=0)
+    procs = [g.proc for g in venv._groups[1:]]
+    assert len(procs) == 2 and all(p.poll() is None for p in procs)
+    procs[1].kill()
+    with pytest.raises(WorkerError, match=r"worker 2 \(worlds 2-2\) died"):
+        venv.step(np.zeros((3, 2)))
+    assert all(p.poll() is not None for p in procs)  # the other worker was ended too
+    with pytest.raises(InvalidParameterError, match="closed"):
+        venv.step(np.zeros((3, 2)))
+    venv = PourVectorEnv(2, workers=2, liquid="water")
+    proc = venv._groups[1].proc
+    venv.reset(seed=0)
+    venv.close()
+    assert proc.poll() == 0  # it finished on request
+    venv.close()  # a second close is harmless
+
+
+def test_worker_counts() -> None:
+    assert default_workers(1) == 1
+    assert 1 <= default_workers(64) <= 64
+    assert split(10, 3) == [(0, 4), (4, 3), (7, 3)]
+    assert PourVectorEnv(1).workers == 1  # one world: in this process
+    for bad, match in [(0, "workers must be >= 1"), (3, "at most one worker per world")]:
+        with pytest.raises(InvalidParameterError, match=match):
+            PourVectorEnv(2, workers=bad)
+    with pytest.raises(InvalidParameterError, match="unknown environment setting 'liquidd'"):
+        PourVectorEnv(2, workers=2, liquidd="water")  # refused before any worker starts
