@@ -808,3 +808,43 @@ def test_metrics_of_every_world_from_one_read() -> None:
     assert got[0].inside_g != got[1].inside_g  # the two pours differ: worlds kept apart
     with pytest.raises(ValueError, match="not a container of world 0"):
         liquid_metrics_all(s, {0: [scene.source[1], scene.target[0]]}, x)
+
+
+def test_a_runaway_below_the_speed_cap_is_flagged() -> None:
+    """A particle thrown out of a cup of settled water at 3 m/s (far below ``max_speed``, but
+    faster than any fall in the scene could make it) flags its world, and only its world."""
+    s = PBFSolver(2)
+    shape = cup(0.03, 0.06)
+    for w in range(2):
+        s.fill(w, s.add_container(w, shape), 100.0, "water")
+    for _ in range(10):
+        s.step(6)
+        assert not s.diverged().any()
+    top = s.positions()[s.world_slice(1)][:, 2].max()
+    s.add_particles(1, [[0.0, 0.0, top + 0.004]], velocities=[[0.5, 0.0, 3.0]])
+    s.step()
+    assert s.diverged().tolist() == [False, True]
+
+
+def test_fast_liquid_motion_is_not_a_blow_up() -> None:
+    """A collapsing 12 cm column (its front near the free-fall speed from its top) and a tray
+    of water carried at 1.5 m/s, then stopped dead, are never flagged."""
+    dam = PBFSolver(1)
+    dam.add_container(0, BoxShell(0.15, 0.025, 0.2, 0.005))
+    block = np.stack(np.meshgrid(*(np.arange(k) * 0.005 for k in (12, 10, 24))), -1)
+    dam.add_particles(0, block.reshape(-1, 3) + np.array([-0.1475, -0.0225, 0.0075]))
+    tray = PBFSolver(1)
+    box = BoxShell(0.04, 0.04, 0.03, 0.003)
+    c = tray.add_container(0, box)
+    tray.fill(0, c, 100.0, "water")
+    fastest = 0.0
+    for _ in range(48):
+        dam.step(4)
+        for _ in range(4):  # carried at 1.5 m/s for 0.4 s, then held
+            x = min(tray.steps + 1, 96) * tray.config.dt * 1.5
+            tray.set_collider_poses([c], np.array([[x, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]]))
+            tray.step()
+        fastest = max(fastest, float(np.linalg.norm(dam.velocities(), axis=1).max()))
+        assert not dam.diverged().any(), f"dam break flagged at {dam.time:.2f} s"
+        assert not tray.diverged().any(), f"carried tray flagged at {tray.time:.2f} s"
+    assert fastest > 1.0  # the collapse is fast: the bound is not idle

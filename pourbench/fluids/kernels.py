@@ -1148,6 +1148,53 @@ def add_reaction(cols: Colliders, c: int, corr: wp.vec3, point: wp.vec3, m: floa
         add_fixed(cols.torque, body, wp.cross(point - cols.com[c], f))
 
 
+@wp.func
+def sweep(cols: Colliders, c: int, a: wp.vec3, b: wp.vec3, radius: float):
+    """A particle's move from ``a`` to ``b`` (collider ``c``'s frame), stopped where it first
+    comes near a surface; the sliding part of the rest of the move is swept the same way (up
+    to three contacts, then the particle stays at the last). Returns the end point and 1 if
+    the move touched (0: ``b`` unchanged).
+
+    Sphere tracing against the level min(``radius``, start distance) / 2: a particle that
+    starts in contact with one wall and slides along it still stops at the next wall, and a
+    wall of any thickness is never crossed. A start deeper inside than ``radius`` is not
+    traced (the projection pushes it out)."""
+    hit = int(0)
+    q = b
+    start = a
+    end = b
+    for _contact in range(3):
+        seg = end - start
+        seg_len = wp.length(seg)
+        s0 = sdf_of(cols, c, start)
+        if s0[0] <= -radius or seg_len <= 1.0e-9:
+            q = end
+            break
+        level = 0.5 * wp.min(radius, wp.abs(s0[0]))
+        t = float(0.0)
+        touched = int(0)
+        for _it in range(24):
+            pt = start + seg * t
+            s = sdf_of(cols, c, pt)
+            gap = s[0] - level
+            if gap <= 1.0e-5:
+                touched = 1
+                na = wp.vec3(s[1], s[2], s[3])
+                rest = end - pt  # only the sliding part of the remaining motion goes on
+                start = pt
+                end = pt + rest - na * wp.min(wp.dot(rest, na), 0.0)
+                q = pt
+                break
+            t = t + gap / seg_len
+            if t >= 1.0:
+                break
+        if touched == 0:
+            q = end
+            break
+        hit = 1
+    return q, hit
+
+
 @wp.kernel
 def apply_delta(
     p: wp.array(dtype=wp.vec3),
@@ -1198,18 +1245,22 @@ def apply_delta(
     room = float(1.0e10)
     for c in range(cols.world_start[w], cols.world_end[w]):
         tf = cols.pose[c]
-        q = wp.transform_point(wp.transform_inverse(tf), pi)
-        lq = wp.length(q)
-        if lq > cols.bound[c] + radius:
+        tf_inv = wp.transform_inverse(tf)
+        b = wp.transform_point(tf_inv, pi)
+        lq = wp.length(b)
+        if lq > cols.bound[c] + radius + wp.length(pi - p0):
             room = wp.min(room, lq - cols.bound[c] - radius)
-            continue  # out of the collider's bounding sphere: no contact possible
+            continue  # the move stays out of the collider's bounding sphere: no contact
+        # swept from the iteration's start, so that a large correction never crosses a wall
+        q, hit = sweep(cols, c, wp.transform_point(tf_inv, p0), b, radius)
         s = sdf_of(cols, c, q)
         room = wp.min(room, s[0] - radius)
-        if s[0] < radius:
-            push[i] = push[i] + (radius - s[0])
-            n = wp.vec3(s[1], s[2], s[3])
+        if s[0] < radius or hit == 1:
+            pen = wp.max(radius - s[0], 0.0)
+            push[i] = push[i] + pen
+            q = q + wp.vec3(s[1], s[2], s[3]) * pen
             # the correction, not the position, goes back to the world frame (see collide)
-            new_p = pi + wp.transform_vector(tf, n * (radius - s[0]))
+            new_p = pi + wp.transform_vector(tf, q - b)
             add_reaction(cols, c, new_p - pi, new_p, mass[w], dt)
             pi = new_p
     clear[i] = room
@@ -1304,29 +1355,8 @@ def collide(
         t_near = wp.clamp(-wp.dot(a, seg) / wp.max(wp.dot(seg, seg), 1.0e-20), 0.0, 1.0)
         if wp.length(a + seg * t_near) > cols.bound[c] + radius + band:
             continue
-        sa = sdf_of(cols, c, a)
-        na = wp.vec3(sa[1], sa[2], sa[3])
-        q = b
-        hit = int(0)
-        if sa[0] > -radius and seg_len > 1.0e-9 and wp.dot(seg, na) < 0.0:
-            # sphere-trace from a toward b; stop at the first point within `radius`
-            t = float(0.0)
-            for _it in range(24):
-                pt = a + seg * t
-                s = sdf_of(cols, c, pt)
-                gap = s[0] - radius
-                if gap <= 1.0e-5:
-                    hit = 1
-                    q = pt
-                    na = wp.vec3(s[1], s[2], s[3])
-                    break
-                t = t + gap / seg_len
-                if t >= 1.0:
-                    break
+        q, hit = sweep(cols, c, a, b, radius)
         touched = hit
-        if hit == 1:
-            rest = b - q  # keep only the sliding part of the remaining motion
-            q = q + rest - na * wp.min(wp.dot(rest, na), 0.0)
         s = sdf_of(cols, c, q)
         if s[0] < radius + adhesion_range:
             pen = radius - s[0]
@@ -1381,20 +1411,31 @@ def update_velocity(
     dissipation: wp.array(dtype=float),
     sleep: float,
     dt: float,
+    up: wp.vec3,
     v: wp.array(dtype=wp.vec3),
     x: wp.array(dtype=wp.vec3),
+    top: wp.array(dtype=float),
+    bottom: wp.array(dtype=float),
 ):
     """v = (x* − x)/dt, damped by shape contacts (``dissipation``), then x = x*; a particle
-    slower than ``sleep`` (FleX's sleepThreshold, 0: off) stays where it started, at rest."""
+    slower than ``sleep`` (FleX's sleepThreshold, 0: off) stays where it started, at rest.
+    ``top`` and ``bottom`` keep the greatest and least height (along ``up``) each world's
+    liquid has reached."""
     i = wp.tid()
+    w = world[i]
     vi = (p[i] - x_prev[i]) / dt
-    vi = vi / (1.0 + dissipation[world[i]] * float(contacts[i]) * dt)
+    vi = vi / (1.0 + dissipation[w] * float(contacts[i]) * dt)
     if sleep > 0.0 and wp.length(vi) < sleep:
         v[i] = wp.vec3(0.0)
         x[i] = x_prev[i]
     else:
         v[i] = vi
         x[i] = p[i]
+    height = wp.dot(up, x[i])
+    if height > top[w]:  # rarely true: the atomics are seldom reached
+        wp.atomic_max(top, w, height)
+    if height < bottom[w]:
+        wp.atomic_min(bottom, w, height)
 
 
 @wp.kernel

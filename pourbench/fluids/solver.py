@@ -54,6 +54,12 @@ from pourbench.fluids.meshes import check_closed_mesh
 from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell
 
+RUNAWAY_ENERGY = 3.0
+"""How many times the specific energy a world's scene holds (its liquid's height range under
+gravity, its walls' motion) one particle may carry before :meth:`PBFSolver.diverged` calls it
+a blow-up. Pressure concentrates energy in a few particles: the run-up of a collapsing column
+against a wall carries its tip about twice as high as the column stood."""
+
 OVERFLOW_CHECK_EVERY = 16
 """Steps between checks that no neighbour list is full (one small read-back each)."""
 
@@ -122,7 +128,8 @@ class SolverConfig:
         adhesion_gain: fraction of the gap closed per step of ``calibration_dt`` per unit
             FleX adhesion (the spring it makes is kept at other steps, see
             :meth:`PBFSolver.step_fractions`).
-        max_speed: speed above which a world is flagged as diverged, m/s.
+        max_speed: speed above which a world is flagged as diverged in any scene, m/s
+            (:meth:`PBFSolver.diverged` flags slower runaways by a bound from the scene).
         sleep_threshold: FleX's ``sleepThreshold``, m/s: a particle whose step ends slower
             than this does not move that step (it keeps its start position, its velocity is
             zeroed before the velocity filters). 0 (FleX's default) turns it off. At 0.005 a
@@ -398,6 +405,15 @@ class PBFSolver:
         self._x = np.zeros((0, 3), np.float32)
         self._v = np.zeros((0, 3), np.float32)
         self._world = np.zeros(0, np.int32)
+        # diverged(): per world, the highest its liquid has been (along −gravity) and the
+        # fastest its colliders have moved (m/s), since its particles were added
+        g = np.asarray(self.config.gravity, float)
+        norm = float(np.linalg.norm(g))
+        self._up = -g / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
+        self._top = np.full(self.num_worlds, -np.inf, np.float32)
+        self._bottom = np.full(self.num_worlds, np.inf, np.float32)
+        self._wall_speed = np.zeros(self.num_worlds)
+        self._uploaded_poses: np.ndarray | None = None
         self._dirty = True
         self._poses_pending = False
         self._host_poses: tuple[np.ndarray, np.ndarray] | None = None  # set by _upload_poses
@@ -496,6 +512,10 @@ class PBFSolver:
             vel = check_array("particle velocities", velocities, pos.shape).astype(np.float32)
         self._mark_dirty()
         # keep particles grouped by world so each world's slice is contiguous
+        if len(pos):
+            height = pos @ self._up
+            self._top[world] = max(self._top[world], float(height.max()))
+            self._bottom[world] = min(self._bottom[world], float(height.min()))
         idx = np.searchsorted(self._world, world, side="right")
         self._x = np.insert(self._x, idx, pos, axis=0)
         self._v = np.insert(self._v, idx, vel.reshape(-1, 3), axis=0)
@@ -505,6 +525,8 @@ class PBFSolver:
         """Remove every particle of ``world`` (e.g. before refilling it on an episode reset)."""
         self._check_world(world)
         self._mark_dirty()
+        self._top[world], self._bottom[world] = -np.inf, np.inf
+        self._wall_speed[world] = 0.0
         keep = self._world != world
         self._x, self._v, self._world = self._x[keep], self._v[keep], self._world[keep]
 
@@ -562,6 +584,8 @@ class PBFSolver:
         if not self._dirty:
             self._x = self.x.numpy().copy()
             self._v = self.v.numpy().copy()
+            self._top = self.top.numpy().copy()
+            self._bottom = self.bottom.numpy().copy()
             self._dirty = True
 
     def step_fractions(self) -> dict[str, np.ndarray]:
@@ -605,6 +629,8 @@ class PBFSolver:
         self.x = f(self._x)
         self.v = f(self._v)
         self.world = wp.array(self._world, dtype=wp.int32, device=dev)
+        self.top = wp.array(self._top, dtype=float, device=dev)
+        self.bottom = wp.array(self._bottom, dtype=float, device=dev)
         for name in ("x_prev", "p", "p_sorted", "delta", "omega", "normal", "v_tmp", "eta"):
             setattr(self, name, wp.zeros(n, dtype=wp.vec3, device=dev))
         self.lam = wp.zeros(n, dtype=float, device=dev)
@@ -683,7 +709,9 @@ class PBFSolver:
             np.concatenate(flat) if flat else np.zeros(1, np.float32), dtype=float, device=dev
         )
         self.cols.body = ints([c.body for c in cols])
-        self.cols.bound = wp.array([_bound(c) for c in cols], dtype=float, device=dev)
+        self._col_bounds = np.array([_bound(c) for c in cols], float)
+        self._col_worlds = np.array([c.world for c in cols], int)
+        self.cols.bound = wp.array(self._col_bounds, dtype=float, device=dev)
         # reactions summed in integer units of K.WRENCH_UNIT (order-independent sums)
         self.cols.force = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
         self.cols.torque = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
@@ -709,6 +737,10 @@ class PBFSolver:
         cols = [self.colliders[i] for i in self._col_order] or [Collider(0, 0, np.zeros(1))]
         poses = np.array([c.pose for c in cols], np.float32)
         coms = np.array([c.com for c in cols], np.float32)
+        last = self._uploaded_poses
+        if not prev_too and last is not None and last.shape == (len(self._col_bounds), 7):
+            self._track_wall_speed(last, poses)
+        self._uploaded_poses = poses
         c = self.cols
         if prev_too:
             c.pose = wp.array(poses, dtype=wp.transform, device=self.device)
@@ -723,6 +755,14 @@ class PBFSolver:
             c.pose.assign(poses)
             c.com.assign(coms)
         self._poses_pending = False
+
+    def _track_wall_speed(self, start: np.ndarray, end: np.ndarray) -> None:
+        """Raise each world's fastest collider surface speed by this step's moves: a
+        collider's origin speed plus its angular speed times its bounding radius."""
+        move = np.linalg.norm(end[:, :3] - start[:, :3], axis=1)
+        cos_half = np.clip(np.abs((end[:, 3:] * start[:, 3:]).sum(1)), 0.0, 1.0)
+        turn = 2.0 * np.arccos(cos_half) * self._col_bounds
+        np.maximum.at(self._wall_speed, self._col_worlds, (move + turn) / self.config.dt)
 
     def set_collider_poses(
         self, indices: list[int], poses: np.ndarray, com: np.ndarray | None = None
@@ -960,8 +1000,9 @@ class PBFSolver:
                 P["dissipation"],
                 cfg.sleep_threshold,
                 cfg.dt,
+                wp.vec3(*self._up),
             ],
-            [self.v, self.x],
+            [self.v, self.x, self.top, self.bottom],
         )
         if self._needs_curl_and_normals:
             self._launch(
@@ -1225,17 +1266,39 @@ class PBFSolver:
         return out.numpy().astype(float)
 
     def diverged(self) -> np.ndarray:
-        """Per-world flag: NaN state, runaway speed, or particles far from the origin."""
+        """Per-world flag: a non-finite state, a particle 100 m from the origin, or a runaway
+        particle.
+
+        A particle runs away when it is faster than ``config.max_speed``, or when its
+        mechanical energy per unit mass, ½v² + g (z − z_low), exceeds what the scene can give
+        it: ``RUNAWAY_ENERGY`` × (g (z_high − z_low) + ½ (2 v_wall)²) + ½ v_rest². Here z_high
+        and z_low are the highest and lowest its world's liquid has been and v_wall the
+        fastest any of the world's colliders has moved (a wall flings liquid at up to twice
+        its speed), all since the world's particles were added and tracked every step;
+        v_rest, half a spacing per step, is the scale of the solver's own rearrangements.
+        """
+        cfg = self.config
         out = np.zeros(self.num_worlds, bool)
         if self.num_particles == 0:
             return out
         x, v, w = self.positions(), self.velocities(), self._world
-        bad = (
-            ~np.isfinite(x).all(1)
-            | ~np.isfinite(v).all(1)
-            | (np.linalg.norm(v, axis=1) > self.config.max_speed)
-            | (np.abs(x).max(1) > 100.0)
-        )
+        g = float(np.linalg.norm(cfg.gravity))
+        if self._dirty:
+            top, bottom = self._top, self._bottom
+        else:
+            top, bottom = self.top.numpy(), self.bottom.numpy()
+        finite = np.isfinite(x).all(1) & np.isfinite(v).all(1)
+        speed2 = (v.astype(float) ** 2).sum(1)
+        with np.errstate(invalid="ignore"):
+            energy = 0.5 * speed2 + g * (x @ self._up - bottom[w])
+            scene = g * (top - bottom) + 2.0 * self._wall_speed**2
+            v_rest = 0.5 * cfg.spacing / cfg.dt
+            bad = (
+                ~finite
+                | (speed2 > cfg.max_speed**2)
+                | (energy > RUNAWAY_ENERGY * scene[w] + 0.5 * v_rest**2)
+                | (np.abs(x).max(1) > 100.0)
+            )
         out[np.unique(w[bad])] = True
         return out
 
