@@ -111,3 +111,13 @@ def test_worker_counts() -> None:
             PourVectorEnv(2, workers=bad)
     with pytest.raises(InvalidParameterError, match="unknown environment setting 'liquidd'"):
         PourVectorEnv(2, workers=2, liquidd="water")  # refused before any worker starts
+
+
+def test_bench_row_with_workers_counts_every_world_and_the_host_share() -> None:
+    from pourbench.bench import env
+
+    assert env.workers_for("vector", "cpu") == (1, 2) and env.workers_for("single", "cpu") == (1,)
+    row = env.run_case("vector", "cpu", 3, budget_s=0.0, min_steps=1, workers=2)
+    assert row["workers"] == 2 and row["worlds"] == 3 and row["env_steps_per_s"] > 0
+    assert row["particles"] > 3 * 100 and 0.3 < row["g_per_particle"] < 0.9
+    assert 0.0 <= row["host_share"] < 1.0

@@ -21,11 +21,13 @@ reward and observation are array operations over the worlds.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
+import warp as wp
 from gymnasium.error import ResetNeeded
 
 from pourbench.containers import Container, container_names, get_container
@@ -299,6 +301,20 @@ class PourBatch:
         self.liquid_names = np.full(n, "", dtype=object)
         self.container_names = np.full(n, "", dtype=object)
         self.worlds: list[WorldState | None] = [None] * n
+        self.solver_seconds = 0.0  # wall time inside the solver's steps (see time_solver)
+        self._sync = False
+
+    def time_solver(self, synchronize: bool) -> None:
+        """Count in ``solver_seconds`` the solver's kernels (``synchronize``: the device is
+        synchronised around each step, which costs CUDA its overlap of host and device) or,
+        without, the time its calls take on the host (on the CPU, where kernels run inside
+        the call, the same)."""
+        self._sync = bool(synchronize)
+
+    def _clock(self) -> float:
+        if self._sync:
+            wp.synchronize_device(self.solver.device)
+        return time.perf_counter()
 
     # ----------------------------------------------------------------------------- setup
 
@@ -539,7 +555,9 @@ class PourBatch:
             self.base = old_base + f * (new_base - old_base)
             self.tilt = old_tilt + f * (new_tilt - old_tilt)
             self._place()
+            t0 = self._clock()
             self.solver.step()
+            self.solver_seconds += self._clock() - t0
             self.reactions.record(k - 1)
         self.base, self.tilt = new_base, new_tilt
         self.max_tilt = np.maximum(self.max_tilt, self.tilt)

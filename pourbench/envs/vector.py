@@ -214,6 +214,12 @@ class PourVectorEnv(VectorEnv):
             self._needs_reset = done
         return obs, rew.astype(np.float64), term, trunc, infos
 
+    def solver_seconds(self, synchronize: bool | None = None) -> list[float]:
+        """Seconds each group of worlds (this process's first, then each worker's) has spent
+        in its solver's steps (``synchronize``: see
+        :meth:`~pourbench.envs.core.PourBatch.time_solver`)."""
+        return self._all("solver_seconds", shared=(synchronize,))
+
     def call_world(self, world: int, fn: Callable[..., Any], *args: Any) -> Any:
         """Run ``fn(batch, index, *args)`` in the process holding ``world``, where ``batch``
         is that process's :class:`PourBatch` and ``index`` the world's index in it; returns

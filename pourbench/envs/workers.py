@@ -117,6 +117,13 @@ class WorldGroup:
             self._renderer = mujoco.Renderer(self.batch.model, *RENDER_SIZE, max_geom=20000)
         return [render_world(self.batch, w, self._renderer) for w in range(self.batch.n)]
 
+    def solver_seconds(self, synchronize: bool | None = None) -> float:
+        """Seconds spent in the solver's steps so far (see :meth:`PourBatch.time_solver`;
+        ``synchronize`` switches the device synchronisation on or off first)."""
+        if synchronize is not None:
+            self.batch.time_solver(synchronize)
+        return self.batch.solver_seconds
+
     def call(self, world: int, fn: Callable[..., Any], args: tuple) -> Any:
         """``fn(batch, world, *args)`` (``world`` is the index within this group)."""
         return fn(self.batch, world, *args)
