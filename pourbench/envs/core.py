@@ -699,6 +699,8 @@ class _ClearanceCheck:
         self.r_pos = data.geom_xpos[rg].copy()  # the receiving body never moves
         self.r_rad = model.geom_rbound[rg].copy()
         self.r_centre, self.r_radius = _enclosing(self.r_pos, self.r_rad)
+        self.r_rel = self.r_pos - self.r_centre
+        self.r_sq = (self.r_rel * self.r_rel).sum(1)
         self.local: list[tuple[np.ndarray, np.ndarray, np.ndarray, float]] = []
         for b in self.names:
             g = np.flatnonzero(model.geom_bodyid == model.body(b).id)
@@ -719,10 +721,13 @@ class _ClearanceCheck:
             rows = rows[near]
             if not len(rows):
                 continue
-            xg = poses[rows, None, :3] + np.einsum("wij,gj->wgi", rot[rows], pos)
-            gap = np.linalg.norm(xg[:, :, None] - self.r_pos[None, None], axis=3)
-            gap -= rad[None, :, None] + self.r_rad[None, None]
-            for w in rows[(gap < _SLACK).any(axis=(1, 2))]:
+            # geom centres relative to the receiving body's centre; squared distances by one
+            # matrix product (a prefilter: exact distances follow where it passes)
+            xg = poses[rows, None, :3] - self.r_centre + np.einsum("wij,gj->wgi", rot[rows], pos)
+            d2 = (xg * xg).sum(2)[:, :, None] + self.r_sq[None, None] - 2.0 * (xg @ self.r_rel.T)
+            reach = (rad[:, None] + self.r_rad[None] + _SLACK) ** 2
+            gap = d2 - reach[None]
+            for w in rows[(gap < 0.0).any(axis=(1, 2))]:
                 out[w] = self._exact(c, poses[w]) < 0.0
         return out
 
@@ -739,7 +744,7 @@ class _ClearanceCheck:
             mujoco.mj_kinematics(self.model, d)
 
 
-_SLACK = 1e-6  # m: bounding spheres this close go to the exact check
+_SLACK = 1e-4  # m: bounding spheres this close go to the exact check
 
 
 def _enclosing(pos: np.ndarray, rad: np.ndarray) -> tuple[np.ndarray, float]:
