@@ -59,6 +59,20 @@ def test_partial_likelihood_prefers_the_right_model() -> None:
     assert fr[0] < fr[1] < fr[2]
 
 
+@pytest.mark.parametrize("left_right", [True, False])
+def test_lookbacks_are_the_likelihoods_of_shorter_prefixes(left_right: bool) -> None:
+    seqs = [trajectory_features(delta_sample(d.points, 0.006)) for d in letter_demos("S", 5)]
+    model = HSMM(4, left_right=left_right).fit(seqs)
+    f = trajectory_features(delta_sample(letter_demos("S", 1, start=9)[0].points, 0.006))[:70]
+    p = model.partial(f, lookbacks=[1, 10, 69, 70, 100])
+    want = [model.partial(f[: 70 - w]).loglik for w in (1, 10, 69)]
+    np.testing.assert_allclose(p.before[:3], want, rtol=1e-12)
+    assert p.before[3:] == (0.0, 0.0)  # the empty sequence
+    assert p.loglik == model.partial(f).loglik
+    with pytest.raises(InvalidParameterError, match="lookback"):
+        model.partial(f, lookbacks=[0])
+
+
 def test_state_sequence_is_left_right_and_normalised() -> None:
     seqs = [trajectory_features(delta_sample(d.points, 0.006)) for d in letter_demos("L", 5)]
     model = HSMM(4).fit(seqs)

@@ -53,7 +53,7 @@ import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from collections import defaultdict  # noqa: E402
-from collections.abc import Callable  # noqa: E402
+from collections.abc import Callable, Sequence  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from typing import Any  # noqa: E402
 
@@ -135,6 +135,24 @@ VARIATIONS_3D = (
 
 
 OPERATORS = ("held-out demo", "skill replay")
+
+# Calibration of the invariant recognition (our addition): one held-out demonstration per
+# letter (index 20, never an operator) under each distinct kind of variation it must absorb
+# (translations change no feature, so they are represented by the identical copy).
+CALIBRATION_VARIATIONS = tuple(v for v in VARIATIONS_2D if v.cls != "translated")
+
+
+def _centre(pts: np.ndarray) -> np.ndarray:
+    return 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+
+
+def _calibration_demos(letters: Sequence[str]) -> dict[str, list[np.ndarray]]:
+    """Held-out demonstrations (index 20) of ``letters`` under CALIBRATION_VARIATIONS."""
+    out = {}
+    for L in letters:
+        pts = letter_demos(L, 1, seed=SEED, start=20)[0].points
+        out[L] = [v.apply(pts, _centre(pts)) for v in CALIBRATION_VARIATIONS]
+    return out
 
 
 def _skill_replay(traj: np.ndarray, duration: float) -> np.ndarray:
@@ -334,6 +352,8 @@ def run(args: argparse.Namespace) -> int:
     lib2 = SkillLibrary(0.006).fit(
         {L: [d.points for d in letter_demos(L, 10, seed=SEED)] for L in LETTERS}
     )
+    print("teleop: calibrating the recognition confidence on held-out demos", file=log)
+    lib2.calibrate(_calibration_demos(LETTERS), invariant=True)
     jobs: list[tuple[str, str, str, int, Variation, Callable[[], np.ndarray]]] = []
     operators = ("held-out demo",) if quick else OPERATORS
     for op in operators:
@@ -346,6 +366,13 @@ def run(args: argparse.Namespace) -> int:
         print("teleop: learning 3 feeding skills (5 demos each)", file=log)
         lib3 = SkillLibrary(0.01).fit(
             {T: [d.points for d in feeding_demos(T, 5, seed=SEED)] for T in FEEDING_TARGETS}
+        )
+        lib3.calibrate(
+            {
+                T: [d.points for d in feeding_demos(T, 3, seed=SEED, start=10)]
+                for T in FEEDING_TARGETS
+            },
+            invariant=True,
         )
         for op in operators:
             for rep in range(3 if op == "held-out demo" else 1):

@@ -9,12 +9,20 @@ an online forward variable, finite-horizon LQT from HSMM step-wise Gaussians, or
   Fast Gauss Transform and low-rank kernel accelerations;
 * :mod:`~pourbench.teleop.network`: packets every 33 ms, outages, 50 ms deadline detector;
 * :mod:`~pourbench.teleop.skills`: skill library (HSMM + LQT per skill, recognition);
+* :mod:`~pourbench.teleop.confidence`: the calibrated open-set recognition confidence;
 * :mod:`~pourbench.teleop.skill_cpd`: the arbitration state machine (Algorithms 2 and 3);
 * :mod:`~pourbench.teleop.demos`: generated letter and feeding demonstrations.
 """
 
 from __future__ import annotations
 
+from pourbench.teleop.confidence import (
+    WINDOWS,
+    CalibrationExample,
+    NoneModel,
+    fit_none_model,
+    open_set_posterior,
+)
 from pourbench.teleop.cpd import (
     AffineResult,
     NonRigidResult,
@@ -64,12 +72,15 @@ __all__ = [
     "LETTERS",
     "LETTER_DURATION_S",
     "MODES",
+    "WINDOWS",
     "AffineResult",
+    "CalibrationExample",
     "DeadlineDetector",
     "Demo",
     "LQTResult",
     "NetworkModel",
     "NonRigidResult",
+    "NoneModel",
     "Outage",
     "Progress",
     "Recognition",
@@ -84,10 +95,12 @@ __all__ = [
     "double_integrator",
     "feeding_demos",
     "feeding_template",
+    "fit_none_model",
     "gauss_transform",
     "letter_demos",
     "letter_template",
     "lqt_track",
+    "open_set_posterior",
     "random_outages",
     "register_affine",
     "register_nonrigid",

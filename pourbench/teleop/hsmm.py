@@ -92,12 +92,15 @@ class Progress:
         state: most probable current state.
         fraction: expected progress as a fraction of the expected total duration, in [0, 1].
         step: expected progress in samples.
+        before: log p(f_1..f_{t-w}) for each requested lookback ``w`` (0.0, the empty
+            sequence, when ``w >= t``), in the order asked.
     """
 
     loglik: float
     state: int
     fraction: float
     step: float
+    before: tuple[float, ...] = ()
 
 
 class HSMM:
@@ -387,11 +390,13 @@ class HSMM:
                 incoming[t + 1] = logsumexp(fend[:, None] + lA, axis=0)
         return incoming, C
 
-    def partial(self, features: np.ndarray) -> Progress:
+    def partial(self, features: np.ndarray, lookbacks: Sequence[int] = ()) -> Progress:
         """Forward variable on a partial sequence: likelihood, current state, progress.
 
         Args:
             features: (t, F) features of the samples seen so far (t >= 1).
+            lookbacks: also give the partial log-likelihood of the sequence without its last
+                ``w`` samples, for each ``w`` (integers >= 1), from the same forward pass.
         """
         self._check_fitted()
         f = np.asarray(features, dtype=float)
@@ -409,6 +414,15 @@ class HSMM:
         d = T - st  # duration of the unfinished last segment
         G = incoming + C[T][None, :] - C[:T] + lsurv[:, d - 1].T  # (start, state)
         ll = float(logsumexp(G))
+        before = []
+        for w in lookbacks:
+            L = T - check_int("lookback", w, minimum=1)
+            if L <= 0:
+                before.append(0.0)
+                continue
+            # segments starting before L only depend on the first L samples
+            Gl = incoming[:L] + C[L][None, :] - C[:L] + lsurv[:, L - st[:L] - 1].T
+            before.append(float(logsumexp(Gl)))
         post = np.exp(G - ll)
         offset = np.concatenate([[0.0], np.cumsum(self.dur_mu)[:-1]])
         # expected progress: samples before the state + time spent in it (capped at its mean)
@@ -416,7 +430,7 @@ class HSMM:
         step = float(np.sum(post * (offset[None, :] + spent)))
         total = float(self.dur_mu.sum())
         state = int(np.argmax(post.sum(axis=0)))
-        return Progress(ll, state, min(max(step / total, 0.0), 1.0), step)
+        return Progress(ll, state, min(max(step / total, 0.0), 1.0), step, tuple(before))
 
     def state_sequence(self, n_steps: int | None = None) -> np.ndarray:
         """(n_steps, K) state activations over time from the durations alone (no observations).

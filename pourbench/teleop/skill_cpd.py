@@ -10,7 +10,10 @@ one of four states:
   ``"none"``, or recognition confidence below ``lambda_minconf``).
 * ``skill``: deadline missed and the skill recognised with confidence >= ``lambda_minconf``
   (Eq. 5.2): the robot runs the registered skill ``xi_c`` (``alpha = 0``), advancing along
-  it at the operator's mean speed measured before the drop.
+  it at the operator's mean speed measured before the drop. The confidence is the library's
+  calibrated open-set probability (:mod:`~pourbench.teleop.confidence`): an operator doing a
+  skill the library does not hold gets a low one, and the robot then holds as in ``"none"``.
+  Modes that may switch therefore need a library calibrated for their recognition mode.
 * ``handback``: packets are back; ``alpha`` rises by 0.1 per packet (Eq. 5.10) and the
   command is ``(1 - alpha) xi_c + alpha h_t``; at ``alpha = 1`` the state is ``direct``.
 
@@ -42,7 +45,7 @@ import numpy as np
 from pourbench.errors import InvalidParameterError, check_finite, check_int, check_positive
 from pourbench.teleop.cpd import register_nonrigid, register_rigid
 from pourbench.teleop.network import DeadlineDetector
-from pourbench.teleop.skills import SkillLibrary
+from pourbench.teleop.skills import Recognition, SkillLibrary
 
 __all__ = [
     "MODES",
@@ -64,7 +67,8 @@ class SkillCPDConfig:
         mode: ``"none"``, ``"standard"`` or ``"skill_cpd"``.
         dt: packet period, s.
         deadline: lambda_deadline, s.
-        min_confidence: lambda_minconf.
+        min_confidence: lambda_minconf, compared with the library's calibrated confidence
+            (a probability).
         delta_d: Δd sampling distance, m.
         rigid_error: rigid registration accepted below this mean distance, m (0.1 cm).
         window: closest-step search window, ± steps.
@@ -283,8 +287,11 @@ class SkillCPD:
         config: parameters.
 
     Raises:
-        InvalidParameterError: ``library`` is not a fitted ``SkillLibrary`` (no skills) or
-            ``config`` is not a ``SkillCPDConfig``.
+        InvalidParameterError: ``library`` is not a fitted ``SkillLibrary`` (no skills),
+            ``config`` is not a ``SkillCPDConfig``, or the mode may switch (``"standard"``,
+            ``"skill_cpd"``) and the library is not calibrated
+            (:meth:`~pourbench.teleop.skills.SkillLibrary.calibrate`) for the recognition
+            mode of ``config`` (``invariant_recognition``).
     """
 
     def __init__(self, library: SkillLibrary, config: SkillCPDConfig | None = None) -> None:
@@ -300,12 +307,23 @@ class SkillCPD:
             )
         self.library = library
         self.config = config or SkillCPDConfig()
+        if self.config.mode != "none" and (
+            library.calibration(invariant=self.config.invariant_recognition) is None
+        ):
+            raise InvalidParameterError(
+                f"the library is not calibrated for invariant_recognition="
+                f"{self.config.invariant_recognition}: without calibration its confidence is "
+                f"a closed-set posterior (about 1 for any input) and cannot gate the switch; "
+                f"call library.calibrate(held_out_demos, "
+                f"invariant={self.config.invariant_recognition})"
+            )
         self.detector = DeadlineDetector(self.config.deadline)
         self.state = "direct"
         self.alpha = 1.0
         self.position: np.ndarray | None = None
         self.history: list[np.ndarray] = []  # xi_h*: executed positions, Δd-sampled
         self.registrations: list[Registration] = []
+        self.recognitions: list[tuple[float, Recognition]] = []  # (time, result) per attempt
         self.transitions: list[tuple[float, str, str]] = []
         self._skill: np.ndarray | None = None
         self._cum: np.ndarray | None = None
@@ -345,6 +363,7 @@ class SkillCPD:
         t0 = time.perf_counter()
         rec = self.library.recognize(X, invariant=cfg.invariant_recognition)
         t1 = time.perf_counter()
+        self.recognitions.append((float(t), rec))
         if rec.confidence < cfg.min_confidence:
             return False
         xi_a = self.library.skill(rec.label).trajectory

@@ -6,11 +6,16 @@ skill trajectory ``xi_a`` is the discrete LQT (:func:`~pourbench.teleop.lqt.lqt_
 tracking the HSMM's step-wise Gaussians (activation-weighted means, covariance of the most
 active state), shifted to the demonstrations' mean start point. As the HSMM is learnt from
 Δd-sampled demonstrations, one step of the skill corresponds to one Δd sample of the operator.
-Recognition compares the partial forward likelihoods of all skills; the confidence is the
-posterior of the best skill under a uniform prior. Optionally (``invariant=True``, our
-addition) each skill first aligns the operator's trajectory to itself with rigid CPD, so a
-rotated or scaled operator is still recognised. Results are cached per trajectory, so the
-same partial trajectory asked twice costs nothing the second time.
+Recognition compares the partial forward likelihoods of all skills. Its confidence is the
+open-set posterior of :mod:`~pourbench.teleop.confidence`: the probability of the best skill
+against the other skills and a "none of these" hypothesis whose per-sample log-density is
+learnt by :meth:`SkillLibrary.calibrate` from held-out demonstrations. Before calibration (or
+for a recognition mode that was not calibrated) the confidence is the closed-set posterior
+over the skills, and :attr:`Recognition.calibrated` is False. Optionally
+(``invariant=True``, our addition) each skill first aligns the operator's trajectory to itself
+with rigid CPD, so a rotated or scaled operator is still recognised; such scores differ from
+the plain ones, so each mode has its own calibration. Results are cached per trajectory, so
+the same partial trajectory asked twice costs nothing the second time.
 """
 
 from __future__ import annotations
@@ -26,6 +31,13 @@ from pourbench.errors import (
     check_finite,
     check_int,
     check_positive,
+)
+from pourbench.teleop.confidence import (
+    WINDOWS,
+    CalibrationExample,
+    NoneModel,
+    fit_none_model,
+    open_set_posterior,
 )
 from pourbench.teleop.cpd import register_rigid
 from pourbench.teleop.demos import delta_sample
@@ -60,15 +72,20 @@ class Recognition:
 
     Attributes:
         label: most likely skill.
-        confidence: its posterior probability among the library's skills.
+        confidence: its probability against the other skills and "none of these" when
+            ``calibrated``, else its posterior among the library's skills alone.
         fraction: estimated progress along it, in [0, 1].
-        logliks: partial log-likelihood per skill.
+        logliks: partial log-likelihood per skill, nats.
+        calibrated: whether the library was calibrated for this recognition mode.
+        none: probability of "none of these" (0.0 when not ``calibrated``).
     """
 
     label: str
     confidence: float
     fraction: float
     logliks: dict[str, float]
+    calibrated: bool = False
+    none: float = 0.0
 
 
 class SkillLibrary:
@@ -99,6 +116,7 @@ class SkillLibrary:
         self.reg = check_positive("reg", reg)
         self.skills: dict[str, Skill] = {}
         self._cache: dict[tuple[object, ...], Recognition] = {}
+        self._none: dict[tuple[object, ...], NoneModel] = {}  # calibration per mode
 
     @property
     def labels(self) -> list[str]:
@@ -110,7 +128,8 @@ class SkillLibrary:
 
         Skills already in the library and not named in ``demos`` are kept; the named ones
         are (re)learnt. The update is atomic: every skill is learnt first, and the library
-        (and its recognition cache) changes only when all of them succeeded.
+        (its recognition cache, and its calibrations, which are then dropped) changes only
+        when all of them succeeded.
 
         Args:
             demos: skill label -> list of (n, D) raw trajectories (metres, any sampling rate).
@@ -121,43 +140,9 @@ class SkillLibrary:
                 sampling it needs more than ``n_states`` points), or the skills (new and
                 kept) do not all have the same dimension D. The library is then unchanged.
         """
-        if not isinstance(demos, Mapping):
-            raise InvalidParameterError(
-                f"demos must be a mapping label -> demonstrations, got {type(demos).__name__}"
-            )
-        if not demos:
-            raise InvalidParameterError("demos is empty: need at least one skill")
-        # validate everything before learning anything
+        prepared = _check_demos(demos)
         dims: dict[str, int] = {k: sk.trajectory.shape[1] for k, sk in self.skills.items()}
-        prepared: dict[str, list[np.ndarray]] = {}
-        for label, trajs in demos.items():
-            if isinstance(trajs, np.ndarray):
-                raise InvalidParameterError(
-                    f"skill {label!r}: demonstrations must be a list of (n, D) arrays, "
-                    f"got one array of shape {trajs.shape}"
-                )
-            if not trajs:
-                raise InvalidParameterError(f"skill {label!r} has no demonstrations")
-            arrs = []
-            for i, t in enumerate(trajs):
-                try:
-                    a = np.asarray(t, dtype=float)
-                except (TypeError, ValueError) as exc:
-                    raise InvalidParameterError(
-                        f"skill {label!r}: demonstration {i} must be numbers"
-                    ) from exc
-                if a.ndim != 2 or a.shape[1] < 1:
-                    raise InvalidParameterError(
-                        f"skill {label!r}: demonstration {i} must be (n, D), got {a.shape}"
-                    )
-                if a.shape[1] != (arrs[0].shape[1] if arrs else a.shape[1]):
-                    raise InvalidParameterError(
-                        f"skill {label!r}: demonstration {i} has {a.shape[1]} dims, "
-                        f"demonstration 0 has {arrs[0].shape[1]}"
-                    )
-                arrs.append(a)
-            prepared[str(label)] = arrs
-            dims[str(label)] = arrs[0].shape[1]
+        dims.update({label: arrs[0].shape[1] for label, arrs in prepared.items()})
         if len(set(dims.values())) > 1:
             raise InvalidParameterError(
                 f"all skills must have the same dimension, got {dict(sorted(dims.items()))}"
@@ -170,6 +155,7 @@ class SkillLibrary:
                 raise InvalidParameterError(f"skill {label!r}: {exc}") from exc
         self.skills.update(learnt)
         self._cache.clear()
+        self._none.clear()  # the scores changed: every calibration is stale
         return self
 
     def _learn(self, label: str, trajs: list[np.ndarray]) -> Skill:
@@ -194,6 +180,52 @@ class SkillLibrary:
             raise UnknownNameError("skill", label, self.skills)
         return self.skills[label]
 
+    def _check_points(self, points: object) -> np.ndarray:
+        if not self.skills:
+            raise InvalidParameterError("the skill library is empty: call fit() first")
+        pts = np.asarray(points, dtype=float)
+        dim = next(iter(self.skills.values())).trajectory.shape[1]
+        if pts.ndim != 2 or pts.shape[1] != dim:
+            raise InvalidParameterError(
+                f"points must be (n, {dim}) like the skills, got shape {pts.shape}"
+            )
+        return pts
+
+    @staticmethod
+    def _mode(invariant: bool, max_rotation_deg: float, max_scale: float) -> tuple[object, ...]:
+        """Key of a recognition mode (the alignment limits matter only when invariant)."""
+        check_finite("max_rotation_deg", max_rotation_deg, minimum=0.0)
+        check_finite("max_scale", max_scale, minimum=1.0)
+        return (True, float(max_rotation_deg), float(max_scale)) if invariant else (False,)
+
+    def _progress(
+        self, pts: np.ndarray, mode: tuple[object, ...], lookbacks: tuple[int, ...] = ()
+    ) -> dict[str, Progress]:
+        """Partial HSMM scores of every skill for validated points."""
+        if not mode[0]:
+            f = trajectory_features(pts)
+            return {k: sk.model.partial(f, lookbacks) for k, sk in self.skills.items()}
+        trajectory_features(pts)  # same checks (>= 2 finite points) as the plain mode
+        if not np.any(pts != pts[0]):
+            raise InvalidParameterError(
+                "points are all identical: an invariant alignment needs a spread of points"
+            )
+        _, max_rotation_deg, max_scale = mode
+        assert isinstance(max_rotation_deg, float) and isinstance(max_scale, float)
+        prog = {}
+        for k, sk in self.skills.items():
+            m = min(sk.trajectory.shape[0], pts.shape[0] + 10)
+            rig = register_rigid(pts, sk.trajectory[:m], w=0.1, tol=1e-3, max_iter=60)
+            ang = np.degrees(np.arccos(np.clip((np.trace(rig.R) - (pts.shape[1] - 2)) / 2, -1, 1)))
+            ok = ang <= max_rotation_deg and 1.0 / max_scale <= rig.s <= max_scale
+            aligned = (pts - rig.t) @ rig.R / rig.s
+            p = sk.model.partial(trajectory_features(aligned), lookbacks)
+            if not ok:
+                rejected = tuple(-np.inf for _ in lookbacks)
+                p = Progress(-np.inf, p.state, p.fraction, p.step, rejected)
+            prog[k] = p
+        return prog
+
     def recognize(
         self,
         points: np.ndarray,
@@ -215,60 +247,153 @@ class SkillLibrary:
             max_rotation_deg: largest accepted rotation, degrees (finite, >= 0).
             max_scale: largest accepted scale factor (finite, >= 1).
 
+        Returns:
+            The most likely skill; its confidence is calibrated (open set) when
+            :meth:`calibrate` was run for this mode (the same ``invariant`` and, when
+            invariant, the same limits), else the closed-set posterior.
+
         Raises:
             InvalidParameterError: the library is empty, ``points`` is not a finite (n >= 2,
                 D) array with the skills' D, or ``max_rotation_deg`` / ``max_scale`` is out
                 of its range.
         """
-        if not self.skills:
-            raise InvalidParameterError("the skill library is empty: call fit() first")
-        check_finite("max_rotation_deg", max_rotation_deg, minimum=0.0)
-        check_finite("max_scale", max_scale, minimum=1.0)
-        pts = np.asarray(points, dtype=float)
-        dim = next(iter(self.skills.values())).trajectory.shape[1]
-        if pts.ndim != 2 or pts.shape[1] != dim:
-            raise InvalidParameterError(
-                f"points must be (n, {dim}) like the skills, got shape {pts.shape}"
-            )
-        key = (pts.tobytes(), pts.shape, invariant, max_rotation_deg, max_scale)
+        pts = self._check_points(points)
+        mode = self._mode(invariant, max_rotation_deg, max_scale)
+        key = (pts.tobytes(), pts.shape, mode)
         if key in self._cache:
             return self._cache[key]
-        f = trajectory_features(pts)
-        if invariant and not np.any(pts != pts[0]):
-            raise InvalidParameterError(
-                "points are all identical: an invariant alignment needs a spread of points"
-            )
-        if invariant:
-            prog = {}
-            for k, sk in self.skills.items():
-                m = min(sk.trajectory.shape[0], pts.shape[0] + 10)
-                rig = register_rigid(pts, sk.trajectory[:m], w=0.1, tol=1e-3, max_iter=60)
-                ang = np.degrees(
-                    np.arccos(np.clip((np.trace(rig.R) - (pts.shape[1] - 2)) / 2, -1, 1))
-                )
-                ok = ang <= max_rotation_deg and 1.0 / max_scale <= rig.s <= max_scale
-                aligned = (pts - rig.t) @ rig.R / rig.s
-                p = sk.model.partial(trajectory_features(aligned))
-                prog[k] = p if ok else Progress(-np.inf, p.state, p.fraction, p.step)
-        else:
-            prog = {k: sk.model.partial(f) for k, sk in self.skills.items()}
+        model = self._none.get(mode)
+        prog = self._progress(pts, mode, (model.window,) if model else ())
         names = list(prog)
         ll = np.array([prog[k].loglik for k in names])
-        if not np.any(np.isfinite(ll)):
-            out = Recognition(
-                names[0], 0.0, 0.0, {k: float(v) for k, v in zip(names, ll, strict=True)}
-            )
-        else:
-            post = np.exp(ll - ll.max())
-            post /= post.sum()
-            best = int(np.argmax(ll))
-            out = Recognition(
-                names[best],
-                float(post[best]),
-                prog[names[best]].fraction,
-                {k: float(v) for k, v in zip(names, ll, strict=True)},
-            )
+        before = np.array([prog[k].before[0] for k in names]) if model else None
+        post = open_set_posterior(ll, before, pts.shape[0], model)
+        best = int(np.argmax(ll)) if np.any(np.isfinite(ll)) else 0
+        out = Recognition(
+            names[best],
+            float(post[best]),
+            prog[names[best]].fraction if np.isfinite(ll[best]) else 0.0,
+            {k: float(v) for k, v in zip(names, ll, strict=True)},
+            calibrated=model is not None,
+            none=float(post[-1]) if model is not None else 0.0,
+        )
         if len(self._cache) > 64:
             self._cache.clear()
         self._cache[key] = out
         return out
+
+    def calibrate(
+        self,
+        demos: Mapping[str, Sequence[np.ndarray]],
+        *,
+        fractions: Sequence[float] = (0.4, 0.5, 0.6),
+        invariant: bool = False,
+        max_rotation_deg: float = 45.0,
+        max_scale: float = 1.5,
+    ) -> NoneModel:
+        """Learn the "none of these" hypothesis from held-out demonstrations.
+
+        See :mod:`~pourbench.teleop.confidence` for the model and the fit. Every
+        demonstration is Δd-sampled and scored at each prefix ``fractions`` of its length
+        (at least 2 samples), with the same recognition mode as :meth:`recognize`
+        (``invariant`` and its limits); later recognitions in that mode return the
+        calibrated confidence. Refitting skills drops every calibration.
+
+        Args:
+            demos: skill label -> list of (n, D) raw trajectories of that skill (metres),
+                none of them used in :meth:`fit`; at least two skills of the library in
+                all (for the leave-one-skill-out "none" examples), no unknown label.
+            fractions: prefix lengths as fractions of each demonstration, each in (0, 1]
+                (default: 40-60 %, where the benchmark's network drops fall).
+            invariant, max_rotation_deg, max_scale: the recognition mode calibrated.
+
+        Returns:
+            The fitted hypothesis (window ``W`` and log-density ``tau``).
+
+        Raises:
+            InvalidParameterError: an empty or uncalibratable library (fewer than two
+                skills), malformed demonstrations (as :meth:`fit`), a demonstration with
+                fewer than 2 Δd samples, bad ``fractions`` or alignment limits, or no
+                demonstration scored finitely by its own skill. The library is then
+                unchanged.
+            UnknownNameError: a label that is not a skill of the library.
+        """
+        if len(self.skills) < 2:
+            raise InvalidParameterError(
+                f"calibration needs a library of at least two skills, it has {len(self.skills)}"
+            )
+        prepared = _check_demos(demos)
+        for label in prepared:
+            if label not in self.skills:
+                raise UnknownNameError("skill", label, self.skills)
+        try:
+            fr = [check_finite("fractions", f, minimum=0.0) for f in fractions]
+        except TypeError as exc:
+            raise InvalidParameterError(f"fractions must be numbers, got {fractions!r}") from exc
+        if not fr or any(not 0.0 < f <= 1.0 for f in fr):
+            raise InvalidParameterError(f"fractions must be in (0, 1], got {fractions!r}")
+        mode = self._mode(invariant, max_rotation_deg, max_scale)
+        names = list(self.skills)
+        examples = []
+        for label, arrs in prepared.items():
+            for i, a in enumerate(arrs):
+                pts = delta_sample(self._check_points(a), self.delta_d)
+                if pts.shape[0] < 2:
+                    raise InvalidParameterError(
+                        f"skill {label!r}: demonstration {i} has fewer than 2 samples Δd apart"
+                    )
+                for f in fr:
+                    n = max(2, round(f * pts.shape[0]))
+                    prog = self._progress(pts[:n], mode, WINDOWS)
+                    ll = np.array([prog[k].loglik for k in names])
+                    before = np.array([prog[k].before for k in names])
+                    examples.append(CalibrationExample(ll, before, n, names.index(label)))
+        model = fit_none_model(examples)
+        self._none[mode] = model
+        self._cache.clear()
+        return model
+
+    def calibration(
+        self, *, invariant: bool = False, max_rotation_deg: float = 45.0, max_scale: float = 1.5
+    ) -> NoneModel | None:
+        """The calibrated "none" hypothesis of a recognition mode, or ``None``."""
+        return self._none.get(self._mode(invariant, max_rotation_deg, max_scale))
+
+
+def _check_demos(demos: object) -> dict[str, list[np.ndarray]]:
+    """Validated ``label -> list of (n, D) float arrays`` (same D within a skill)."""
+    if not isinstance(demos, Mapping):
+        raise InvalidParameterError(
+            f"demos must be a mapping label -> demonstrations, got {type(demos).__name__}"
+        )
+    if not demos:
+        raise InvalidParameterError("demos is empty: need at least one skill")
+    prepared: dict[str, list[np.ndarray]] = {}
+    for label, trajs in demos.items():
+        if isinstance(trajs, np.ndarray):
+            raise InvalidParameterError(
+                f"skill {label!r}: demonstrations must be a list of (n, D) arrays, "
+                f"got one array of shape {trajs.shape}"
+            )
+        if not trajs:
+            raise InvalidParameterError(f"skill {label!r} has no demonstrations")
+        arrs: list[np.ndarray] = []
+        for i, t in enumerate(trajs):
+            try:
+                a = np.asarray(t, dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise InvalidParameterError(
+                    f"skill {label!r}: demonstration {i} must be numbers"
+                ) from exc
+            if a.ndim != 2 or a.shape[1] < 1:
+                raise InvalidParameterError(
+                    f"skill {label!r}: demonstration {i} must be (n, D), got {a.shape}"
+                )
+            if a.shape[1] != (arrs[0].shape[1] if arrs else a.shape[1]):
+                raise InvalidParameterError(
+                    f"skill {label!r}: demonstration {i} has {a.shape[1]} dims, "
+                    f"demonstration 0 has {arrs[0].shape[1]}"
+                )
+            arrs.append(a)
+        prepared[str(label)] = arrs
+    return prepared
