@@ -33,6 +33,7 @@ from pourbench.envs.core import PourBatch, PourConfig
 INFO_FLAGS = ("collided", "sim_diverged", "is_success")
 _START_TIMEOUT_S = 600.0  # a worker that has not built its worlds by then is stopped
 _CLOSE_TIMEOUT_S = 10.0
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 _WORKER_MAIN = (
     "import sys; from multiprocessing.connection import Connection; "
     "from pourbench.envs.workers import serve; serve(Connection(int(sys.argv[1])))"
@@ -174,6 +175,8 @@ class RemoteGroup:
         ours, theirs = socket.socketpair()
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+        for var in _THREAD_VARS:  # a worker is one core's share: no BLAS/OpenMP thread pools
+            env.setdefault(var, "1")
         try:
             self.proc = subprocess.Popen(
                 [sys.executable, "-c", _WORKER_MAIN, str(theirs.fileno())],
