@@ -179,3 +179,33 @@ def test_bad_parameters_and_degenerate_sets_are_refused_clearly(call, match) -> 
 def test_nonrigid_still_accepts_a_single_template_point() -> None:
     res = register_nonrigid(_PTS, _PTS[:1])
     assert np.all(np.isfinite(res.points))
+
+
+def test_rigid_warm_start_resumes_the_same_em() -> None:
+    rng = np.random.default_rng(11)
+    Y = np.cumsum(rng.normal(0, 0.01, size=(80, 2)), axis=0)
+    X = 1.2 * Y[:60] @ _rot2(0.4).T + np.array([0.1, -0.05]) + rng.normal(0, 1e-3, (60, 2))
+    cold = register_rigid(X, Y, w=0.1, tol=1e-8, max_iter=300)
+    early = register_rigid(X, Y, w=0.1, tol=1e-2, max_iter=300)
+    assert early.iterations < cold.iterations
+    warm = register_rigid(X, Y, w=0.1, tol=1e-8, max_iter=300 - early.iterations, init=early)
+    assert early.iterations + warm.iterations == cold.iterations
+    np.testing.assert_allclose(warm.points, cold.points, atol=1e-12)
+    with pytest.raises(InvalidParameterError, match="init must be a RigidResult"):
+        register_rigid(X, Y, init=(np.eye(2), np.zeros(2), 1.0))
+    with pytest.raises(InvalidParameterError, match="dimension"):
+        register_rigid(np.c_[X, X[:, :1]], np.c_[Y, Y[:, :1]], init=early)
+
+
+def test_lowrank_field_reproduces_the_registered_points() -> None:
+    # the kernel weights W are formed after the EM loop: the displacement field they define
+    # must give back the registered template
+    rng = np.random.default_rng(12)
+    t = np.linspace(0, 3, 90)
+    Y = np.c_[t, np.sin(t)] * 0.1
+    X = Y + 0.01 * np.c_[np.sin(2 * t), np.cos(3 * t)] + rng.normal(0, 5e-4, Y.shape)
+    for lowrank in (False, True):
+        res = register_nonrigid(X, Y, w=0.1, lowrank=lowrank, tol=1e-6)
+        # low rank: the field uses the full kernel, the EM its leading eigenpairs (~0.1 um)
+        np.testing.assert_allclose(res.transform(Y), res.points, atol=1e-6 if lowrank else 1e-10)
+        assert np.max(np.abs(res.W)) > 0  # it did move

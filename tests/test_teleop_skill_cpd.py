@@ -318,3 +318,17 @@ def test_failed_library_fit_is_atomic() -> None:
     np.testing.assert_array_equal(lib.skill("A").trajectory, traj_a)
     lib._cache.clear()  # recompute: the skills themselves must be unchanged
     assert lib.recognize(pts) == before
+
+
+def test_registration_resuming_the_recognition_alignment_matches_a_cold_one(library) -> None:
+    cfg = SkillCPDConfig(invariant_recognition=True)
+    for L in "ACS":
+        X = delta_sample(_vary(letter_demos(L, 1, start=11)[0].points, 30, 1.0), 0.006)
+        X = X[: int(0.45 * X.shape[0])]
+        rec = library.recognize(X, invariant=True)
+        assert rec.alignment is not None and rec.label == L
+        xa = library.skill(L).trajectory
+        warm = register_skill(X, xa, X[-1], cfg, rec.alignment)
+        cold = register_skill(X, xa, X[-1], cfg)
+        assert warm[1:2] == cold[1:2] and warm[3] == cold[3]  # kind, closest step
+        np.testing.assert_allclose(warm[0], cold[0], atol=1e-6)

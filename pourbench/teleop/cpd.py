@@ -7,9 +7,12 @@ with a uniform outlier component of weight ``w``; EM alternates
 
 * E-step: ``P[m, n] = exp(-|x_n - T(y_m)|^2 / 2 s2) / (sum_k exp(...) + c)`` with
   ``c = (2 pi s2)^(D/2) w / (1 - w) M / N`` (thesis Eq. 2.68);
-* M-step: the closed-form update of the transform and ``s2`` (rigid: Procrustes with scale;
-  affine: weighted least squares; non-rigid: ``T(Y) = Y + G W`` with the motion-coherence
-  regulariser ``lmbda`` and Gaussian kernel width ``beta``, thesis Eq. 5.8).
+* M-step: the closed-form update of the transform and ``s2`` (rigid: Procrustes with scale,
+  the rotation by SVD, or by its angle in 2-D; affine: weighted least squares; non-rigid:
+  ``T(Y) = Y + G W`` with the motion-coherence regulariser ``lmbda`` and Gaussian kernel
+  width ``beta``, thesis Eq. 5.8).
+
+Rigid CPD can resume an earlier run (``init``), e.g. one stopped at a looser tolerance.
 
 Two accelerations of the non-rigid path, usable separately, measured by
 ``pourbench bench teleop``:
@@ -19,7 +22,8 @@ Two accelerations of the non-rigid path, usable separately, measured by
   back to the direct sum whenever its expansion would cost more than the direct O(MN) sum
   (always the case once ``s2`` is small compared with the point spacing).
 * ``lowrank=True``: ``G`` is replaced by its leading eigenpairs ``Q diag(l) Q^T`` and the
-  M-step system is solved with the Woodbury identity in O(M k^2).
+  M-step system is solved with the Woodbury identity in O(M k^2); the EM only needs
+  ``G W = Q z`` (``z`` the k-vector of the Woodbury solve), so ``W`` is formed once at the end.
 
 Units are whatever the points are in (SI metres in pourbench); ``beta`` applies to the
 normalised point sets (zero mean, unit RMS radius) when ``normalize=True``, as in the paper.
@@ -27,11 +31,13 @@ normalised point sets (zero mean, unit RMS radius) when ``normalize=True``, as i
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from math import factorial, prod
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve, eigh
+from scipy.spatial.distance import cdist
 
 from pourbench.errors import (
     InvalidParameterError,
@@ -52,6 +58,7 @@ __all__ = [
 ]
 
 _S2_FLOOR = 1e-12  # relative to the data's squared scale: stop when the mixture collapses
+_FIRST_RANK = 16  # eigenpairs tried first by the low-rank kernel
 
 
 def _check_points(name: str, pts: object, dim: int | None = None) -> np.ndarray:
@@ -108,20 +115,19 @@ def _sqdist(A: np.ndarray, B: np.ndarray, b2: np.ndarray | None = None) -> np.nd
     return np.maximum(d2, 0.0, out=d2)
 
 
-def _estep_direct(
-    X: np.ndarray, TY: np.ndarray, s2: float, w: float, x2: np.ndarray | None = None
-) -> _Estep:
+def _estep_direct(X: np.ndarray, TY: np.ndarray, s2: float, w: float) -> _Estep:
     N, D = X.shape
     M = TY.shape[0]
-    d2 = _sqdist(TY, X, x2)  # (M, N)
-    K = np.exp(d2 * (-0.5 / s2), out=d2)
+    K = cdist(TY, X, "sqeuclidean")  # (M, N); in place from here on
+    K *= -0.5 / s2
+    np.exp(K, out=K)
     c = (2.0 * np.pi * s2) ** (D / 2.0) * w / (1.0 - w) * M / N
-    den = K.sum(axis=0) + c
-    den = np.maximum(den, np.finfo(float).tiny)
-    P = np.divide(K, den, out=K)
-    P1 = P.sum(axis=1)
-    Pt1 = P.sum(axis=0)
-    return _Estep(P1, Pt1, P @ X, float(P1.sum()), False)
+    den = K.sum(axis=0)
+    den += c
+    np.maximum(den, np.finfo(float).tiny, out=den)
+    K /= den
+    P1 = K.sum(axis=1)
+    return _Estep(P1, K.sum(axis=0), K @ X, float(P1.sum()), False)
 
 
 def _estep_fgt(X: np.ndarray, TY: np.ndarray, s2: float, w: float, eps: float) -> _Estep:
@@ -385,6 +391,7 @@ def register_rigid(
     scale: bool = True,
     max_iter: int = 200,
     tol: float = 1e-10,
+    init: RigidResult | None = None,
 ) -> RigidResult:
     """Rigid CPD (rotation, translation and, by default, uniform scale) of ``Y`` onto ``X``.
 
@@ -395,34 +402,47 @@ def register_rigid(
         scale: estimate the scale (else s = 1).
         max_iter: EM iteration cap (integer >= 1).
         tol: stop when the relative change of sigma^2 falls below this (>= 0).
+        init: warm start: EM continues from this result's transform and variance (e.g. an
+            earlier registration of the same point sets with a looser ``tol``) instead of
+            the identity and the data's spread. Its iterations are not counted again.
 
     Raises:
         InvalidParameterError: malformed or non-finite points, different dimensions, ``w``
-            outside [0, 1), bad ``max_iter`` / ``tol``, or a degenerate point set (all
-            points identical: ``X`` always, ``Y`` when ``scale`` is estimated).
+            outside [0, 1), bad ``max_iter`` / ``tol``, a degenerate point set (all
+            points identical: ``X`` always, ``Y`` when ``scale`` is estimated), or an
+            ``init`` that is not a finite ``RigidResult`` of the same dimension.
     """
     X, Y, w = _check_pair(X, Y, w, max_iter, tol)
     if scale:
         _check_spread("Y", Y)
     D = X.shape[1]
-    s2 = _init_s2(X, Y)
     floor = _S2_FLOOR * max(float(np.var(X, axis=0).sum()), 1e-300)
-    R, t, s = np.eye(D), np.zeros(D), 1.0
-    TY = Y.copy()
+    if init is None:
+        s2 = _init_s2(X, Y)
+        R, t, s = np.eye(D), np.zeros(D), 1.0
+        TY = Y.copy()
+    else:
+        R, t, s, s2 = _check_init(init, D)
+        s2 = max(s2, floor)
+        TY = s * Y @ R.T + t
     x2 = np.einsum("ij,ij->i", X, X)
     y2 = np.einsum("ij,ij->i", Y, Y)
     Cm = np.eye(D)
     it = 0
     for it in range(1, max_iter + 1):  # noqa: B007
-        e = _estep_direct(X, TY, s2, w, x2)
+        e = _estep_direct(X, TY, s2, w)
         if e.Np <= 0.0:
             break
         mux = X.T @ e.Pt1 / e.Np
         muy = Y.T @ e.P1 / e.Np
         A = e.PX.T @ Y - e.Np * np.outer(mux, muy)  # = Xhat^T P^T Yhat
-        U, _, Vt = np.linalg.svd(A)
-        Cm[-1, -1] = 1.0 if np.linalg.det(U @ Vt) >= 0.0 else -1.0
-        R = U @ Cm @ Vt
+        if D == 2:  # the proper rotation maximising tr(A^T R), in closed form
+            ang = math.atan2(float(A[1, 0] - A[0, 1]), float(A[0, 0] + A[1, 1]))
+            R = np.array([[math.cos(ang), -math.sin(ang)], [math.sin(ang), math.cos(ang)]])
+        else:
+            U, _, Vt = np.linalg.svd(A)
+            Cm[-1, -1] = 1.0 if np.linalg.det(U @ Vt) >= 0.0 else -1.0
+            R = U @ Cm @ Vt
         trAR = float(np.sum(A * R))
         yy = float(e.P1 @ y2 - e.Np * muy @ muy)
         xx = float(e.Pt1 @ x2 - e.Np * mux @ mux)
@@ -436,6 +456,21 @@ def register_rigid(
             break
         s2 = new
     return RigidResult(TY, R, t, float(s), float(s2), it)
+
+
+def _check_init(init: object, D: int) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """``(R, t, s, sigma2)`` of a warm start, checked."""
+    if not isinstance(init, RigidResult):
+        raise InvalidParameterError(f"init must be a RigidResult, got {type(init).__name__}")
+    R, t = np.asarray(init.R, dtype=float), np.asarray(init.t, dtype=float)
+    if R.shape != (D, D) or t.shape != (D,):
+        raise InvalidParameterError(
+            f"init has dimension {t.shape[0] if t.ndim == 1 else t.shape}, the points have {D}"
+        )
+    vals = np.concatenate([R.ravel(), t, [init.s, init.sigma2]])
+    if not np.all(np.isfinite(vals)) or init.sigma2 <= 0 or init.s <= 0:
+        raise InvalidParameterError("init must have a finite transform, s > 0 and sigma2 > 0")
+    return R, t, float(init.s), float(init.sigma2)
 
 
 def register_affine(
@@ -460,10 +495,9 @@ def register_affine(
     floor = _S2_FLOOR * max(float(np.var(X, axis=0).sum()), 1e-300)
     B, t = np.eye(D), np.zeros(D)
     TY = Y.copy()
-    x2 = np.einsum("ij,ij->i", X, X)
     it = 0
     for it in range(1, max_iter + 1):  # noqa: B007
-        e = _estep_direct(X, TY, s2, w, x2)
+        e = _estep_direct(X, TY, s2, w)
         if e.Np <= 0.0:
             break
         mux = X.T @ e.Pt1 / e.Np
@@ -558,8 +592,12 @@ def register_nonrigid(
         Xn, Yn = X, Y
     G = _kernel(Yn, beta)
     if lowrank:
-        top = min(M, max_rank)
+        # the kept rank is usually small: try a few eigenpairs, all of them only if needed
+        top = min(M, max_rank, _FIRST_RANK)
         lam, Q = eigh(G, subset_by_index=[M - top, M - 1])
+        if lam[0] > rank_tol * lam[-1] and top < min(M, max_rank):
+            top = min(M, max_rank)
+            lam, Q = eigh(G, subset_by_index=[M - top, M - 1])
         keep = lam > rank_tol * lam[-1]
         lam, Q = lam[keep], Q[:, keep]
         rank = int(lam.size)
@@ -575,8 +613,10 @@ def register_nonrigid(
     x2 = np.einsum("ij,ij->i", Xn, Xn)
     it = 0
     nfgt = 0
+    inv_lam = np.diag(1.0 / lam) if lowrank else np.zeros((0, 0))
+    last: tuple[np.ndarray, np.ndarray, np.ndarray, float] | None = None
     for it in range(1, max_iter + 1):  # noqa: B007
-        e = _estep_fgt(Xn, TY, s2, w, fgt_eps) if fgt else _estep_direct(Xn, TY, s2, w, x2)
+        e = _estep_fgt(Xn, TY, s2, w, fgt_eps) if fgt else _estep_direct(Xn, TY, s2, w)
         nfgt += int(e.used_fgt)
         if e.Np <= 0.0:
             break
@@ -584,10 +624,13 @@ def register_nonrigid(
         rhs = e.PX - P1[:, None] * Yn  # (dP1 G + lmbda s2 I) W = PX - dP1 Y
         ls2 = lmbda * s2
         if lowrank:
+            # Woodbury: W = (rhs - U z) / ls2 with z = inner^-1 Q^T rhs, and then
+            # G W = Q diag(lam) Q^T W = Q z exactly; W itself is formed once, after the loop
             U = P1[:, None] * Q  # dP1 Q
-            inner = ls2 * np.diag(1.0 / lam) + Q.T @ U
-            W = (rhs - U @ np.linalg.solve(inner, Q.T @ rhs)) / ls2
-            GW = Q @ (lam[:, None] * (Q.T @ W))
+            inner = ls2 * inv_lam + Q.T @ U
+            z = np.linalg.solve(inner, Q.T @ rhs)
+            last = (rhs, U, z, ls2)
+            GW = Q @ z
         else:
             Amat = G + ls2 * np.diag(1.0 / P1)
             try:
@@ -597,12 +640,15 @@ def register_nonrigid(
             GW = G @ W
         TY = Yn + GW
         xPx = float(e.Pt1 @ x2)
-        trPXT = float(np.sum(e.PX * TY))
-        trTPT = float(e.P1 @ np.sum(TY**2, axis=1))
+        trPXT = float(np.vdot(e.PX, TY))
+        trTPT = float(e.P1 @ np.einsum("ij,ij->i", TY, TY))
         new = max((xPx - 2.0 * trPXT + trTPT) / (e.Np * D), floor)
         if abs(new - s2) <= tol * s2 or new <= floor:
             s2 = new
             break
         s2 = new
+    if last is not None:
+        rhs, U, z, ls2 = last
+        W = (rhs - U @ z) / ls2
     pts = TY * sx + cx
     return NonRigidResult(pts, W, float(s2), it, nfgt, rank, beta, Yn, (cx, sx, cy, sy))

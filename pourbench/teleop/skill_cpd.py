@@ -21,14 +21,17 @@ Registration (Algorithm 3, mode ``"skill_cpd"``). The rough disconnection index 
 the operator's number of Δd samples (skill steps are one Δd sample of the demonstrations
 apart). The skill prefix up to ``i0`` + 10 steps is registered rigidly (with scale) onto
 ``xi_h*`` and the transform applied to the whole skill; ``i0`` is then divided by the
-recovered scale. If the mean distance from ``xi_h*`` to the registered skill (as a polyline)
-is 0.1 cm or more, the rigidly registered prefix is registered non-rigidly (``beta = 3``,
-``lmbda = 3``) and CPD's displacement field, which is defined everywhere, is applied to the
-whole skill. (The thesis registers the complete skill; with a partial operator trajectory
-that pulls the unmatched rest of the skill onto the operator's points, so the field is
-extrapolated instead.) The closest step to the robot's position within ±10 steps of ``i0``
-(Eq. 5.9) locates the start; the skill starts at the robot's projection onto the segments
-next to that step, as it is followed continuously by arc length.
+recovered scale. With invariant recognition that same rigid CPD (same prefix, same points)
+already ran, with a looser tolerance, to align the operator for the recognised skill: the
+registration resumes its EM instead of starting again. If the mean distance from ``xi_h*``
+to the registered skill (as a polyline) is 0.1 cm or more, the rigidly registered prefix
+is registered non-rigidly (``beta = 3``, ``lmbda = 3``) and CPD's displacement field, which
+is defined everywhere, is applied to the whole skill. (The thesis registers the complete
+skill; with a partial operator trajectory that pulls the unmatched rest of the skill onto
+the operator's points, so the field is extrapolated instead.) The closest step to the
+robot's position within ±10 steps of ``i0`` (Eq. 5.9) locates the start; the skill starts
+at the robot's projection onto the segments next to that step, as it is followed
+continuously by arc length.
 
 Mode ``"standard"`` is standard shared autonomy: the same machine with the unregistered
 skill. Mode ``"none"`` never switches (the robot holds still while disconnected and jumps
@@ -43,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pourbench.errors import InvalidParameterError, check_finite, check_int, check_positive
-from pourbench.teleop.cpd import register_nonrigid, register_rigid
+from pourbench.teleop.cpd import RigidResult, register_nonrigid, register_rigid
 from pourbench.teleop.network import DeadlineDetector
 from pourbench.teleop.skills import Recognition, SkillLibrary
 
@@ -218,7 +221,11 @@ def _mean_nn_distance(A: np.ndarray, B: np.ndarray) -> float:
 
 
 def register_skill(
-    X: np.ndarray, xi_a: np.ndarray, robot: np.ndarray, cfg: SkillCPDConfig
+    X: np.ndarray,
+    xi_a: np.ndarray,
+    robot: np.ndarray,
+    cfg: SkillCPDConfig,
+    init: RigidResult | None = None,
 ) -> tuple[np.ndarray, str, float, int, np.ndarray | None]:
     """Algorithm 3: register the skill ``xi_a`` onto the operator's ``xi_h*`` = ``X``.
 
@@ -227,6 +234,9 @@ def register_skill(
         xi_a: (M, D) skill trajectory, m.
         robot: (D,) robot position where the skill must start, m.
         cfg: parameters (``mode="standard"`` skips the registration).
+        init: a rigid CPD of the same prefix onto ``X`` to continue from (the invariant
+            recognition's alignment, :attr:`Recognition.alignment`): the rigid EM resumes
+            there, with the iterations it already ran deducted from ``cfg.cpd_max_iter``.
 
     Returns:
         ``(xi_c, kind, error, step, nonrigid_template)``: registered skill, ``"rigid"`` /
@@ -254,7 +264,10 @@ def register_skill(
         # the prefix reaches one window past the rough index, so that the part of the
         # skill the operator has drawn is inside it even when the rough index is short
         prefix = xi_a[: max(min(i0 + cfg.window, xi_a.shape[0] - 1) + 1, 2)]
-        rig = register_rigid(X, prefix, w=cfg.cpd_w, tol=cfg.cpd_tol, max_iter=cfg.cpd_max_iter)
+        max_iter = cfg.cpd_max_iter - (init.iterations if init is not None else 0)
+        rig = register_rigid(
+            X, prefix, w=cfg.cpd_w, tol=cfg.cpd_tol, max_iter=max(max_iter, 1), init=init
+        )
         i0 = min(round((X.shape[0] - 1) / max(rig.s, 1e-9)), xi_a.shape[0] - 1)
         xi_c = rig.transform(xi_a)
         err = _mean_nn_distance(X, xi_c)
@@ -368,7 +381,7 @@ class SkillCPD:
             return False
         xi_a = self.library.skill(rec.label).trajectory
         robot = self.position if self.position is not None else X[-1]
-        xi_c, kind, err, step, template = register_skill(X, xi_a, robot, cfg)
+        xi_c, kind, err, step, template = register_skill(X, xi_a, robot, cfg, rec.alignment)
         t2 = time.perf_counter()
         self._skill = xi_c
         seg = np.linalg.norm(np.diff(xi_c, axis=0), axis=1)

@@ -21,7 +21,7 @@ the same partial trajectory asked twice costs nothing the second time.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -39,7 +39,7 @@ from pourbench.teleop.confidence import (
     fit_none_model,
     open_set_posterior,
 )
-from pourbench.teleop.cpd import register_rigid
+from pourbench.teleop.cpd import RigidResult, register_rigid
 from pourbench.teleop.demos import delta_sample
 from pourbench.teleop.hsmm import HSMM, Progress, trajectory_features
 from pourbench.teleop.lqt import lqt_track
@@ -78,6 +78,9 @@ class Recognition:
         logliks: partial log-likelihood per skill, nats.
         calibrated: whether the library was calibrated for this recognition mode.
         none: probability of "none of these" (0.0 when not ``calibrated``).
+        alignment: invariant mode: the rigid CPD that aligned the best skill's first
+            ``n + 10`` steps onto the points (a warm start for the registration), else
+            ``None``.
     """
 
     label: str
@@ -86,6 +89,7 @@ class Recognition:
     logliks: dict[str, float]
     calibrated: bool = False
     none: float = 0.0
+    alignment: RigidResult | None = field(default=None, repr=False, compare=False)
 
 
 class SkillLibrary:
@@ -200,11 +204,11 @@ class SkillLibrary:
 
     def _progress(
         self, pts: np.ndarray, mode: tuple[object, ...], lookbacks: tuple[int, ...] = ()
-    ) -> dict[str, Progress]:
-        """Partial HSMM scores of every skill for validated points."""
+    ) -> tuple[dict[str, Progress], dict[str, RigidResult]]:
+        """Partial HSMM scores of every skill for validated points, and the alignments."""
         if not mode[0]:
             f = trajectory_features(pts)
-            return {k: sk.model.partial(f, lookbacks) for k, sk in self.skills.items()}
+            return {k: sk.model.partial(f, lookbacks) for k, sk in self.skills.items()}, {}
         trajectory_features(pts)  # same checks (>= 2 finite points) as the plain mode
         if not np.any(pts != pts[0]):
             raise InvalidParameterError(
@@ -212,7 +216,7 @@ class SkillLibrary:
             )
         _, max_rotation_deg, max_scale = mode
         assert isinstance(max_rotation_deg, float) and isinstance(max_scale, float)
-        prog = {}
+        prog, aligns = {}, {}
         for k, sk in self.skills.items():
             m = min(sk.trajectory.shape[0], pts.shape[0] + 10)
             rig = register_rigid(pts, sk.trajectory[:m], w=0.1, tol=1e-3, max_iter=60)
@@ -223,8 +227,8 @@ class SkillLibrary:
             if not ok:
                 rejected = tuple(-np.inf for _ in lookbacks)
                 p = Progress(-np.inf, p.state, p.fraction, p.step, rejected)
-            prog[k] = p
-        return prog
+            prog[k], aligns[k] = p, rig
+        return prog, aligns
 
     def recognize(
         self,
@@ -263,7 +267,7 @@ class SkillLibrary:
         if key in self._cache:
             return self._cache[key]
         model = self._none.get(mode)
-        prog = self._progress(pts, mode, (model.window,) if model else ())
+        prog, aligns = self._progress(pts, mode, (model.window,) if model else ())
         names = list(prog)
         ll = np.array([prog[k].loglik for k in names])
         before = np.array([prog[k].before[0] for k in names]) if model else None
@@ -276,6 +280,7 @@ class SkillLibrary:
             {k: float(v) for k, v in zip(names, ll, strict=True)},
             calibrated=model is not None,
             none=float(post[-1]) if model is not None else 0.0,
+            alignment=aligns.get(names[best]),
         )
         if len(self._cache) > 64:
             self._cache.clear()
@@ -344,7 +349,7 @@ class SkillLibrary:
                     )
                 for f in fr:
                     n = max(2, round(f * pts.shape[0]))
-                    prog = self._progress(pts[:n], mode, WINDOWS)
+                    prog, _ = self._progress(pts[:n], mode, WINDOWS)
                     ll = np.array([prog[k].loglik for k in names])
                     before = np.array([prog[k].before for k in names])
                     examples.append(CalibrationExample(ll, before, n, names.index(label)))
