@@ -121,3 +121,22 @@ def test_bench_row_with_workers_counts_every_world_and_the_host_share() -> None:
     assert row["workers"] == 2 and row["worlds"] == 3 and row["env_steps_per_s"] > 0
     assert row["particles"] > 3 * 100 and 0.3 < row["g_per_particle"] < 0.9
     assert 0.0 <= row["host_share"] < 1.0
+    assert row["baseline_env_steps_per_s"] > 0 and row["speedup_vs_baseline"] > 0
+
+
+def test_the_baseline_batch_steps_like_the_env_it_replaced() -> None:
+    """The timing baseline (the step before the batched one) pours, measures and observes as
+    the environment does: its scale reads MuJoCo's sensor, which tracks the poured grams."""
+    from pourbench.bench.env_baseline import LoopedPourBatch
+
+    batch = LoopedPourBatch(1)
+    batch.reset_world(
+        0, seed=1, options={"liquid": "water", "start": ABOVE, "target_g": 60.0, "initial_g": 120.0}
+    )
+    batch.flush()
+    for k in range(40):
+        obs, _, term, trunc, info = batch.step(np.array([[1.0 if k < 20 else -1.0, 0.0]]))
+        if term[0] or trunc[0]:
+            break
+    assert obs.shape == (1, 12) and info["poured_g"][0] > 50.0
+    assert info["measured_g"][0] == pytest.approx(info["poured_g"][0], abs=8.0)

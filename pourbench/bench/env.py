@@ -5,7 +5,10 @@ processes on the CPU; on CUDA (when a device is present) the single env and 256,
 4096 worlds in one process. Default settings (liquid drawn from lesson 1, targets 50–200 g,
 8 mm particles, 10 Hz control with 12 physics substeps). Each case resets once, takes two
 warm-up steps, then steps with a fixed pouring action for a time budget; throughput counts
-one step of one world as one environment step. ``host_share`` is the share of the processes'
+one step of one world as one environment step; every case alternates step by step with the
+step as it was before the batched step (:mod:`pourbench.bench.env_baseline`, in this
+process, on the same worlds), whose throughput and the speed-up over it are in the last
+columns. ``host_share`` is the share of the processes'
 time outside the solver's steps: 1 − (solver seconds summed over the processes) / (workers ×
 wall time); on CUDA the device is synchronised around each solver step to time its kernels.
 """
@@ -33,6 +36,8 @@ COLUMNS = (
     "env_steps_per_s",
     "s_per_vector_step",
     "host_share",
+    "baseline_env_steps_per_s",
+    "speedup_vs_baseline",
 )
 TARGET_SINGLE_CPU = 200.0
 TARGET_VECTOR_CPU = 400.0  # 64 worlds on 2 workers
@@ -65,11 +70,15 @@ def run_case(
     budget_s: float = 5.0,
     min_steps: int = 3,
     workers: int = 1,
+    baseline: bool = True,
 ) -> dict[str, Any]:
     """Time one case (at least ``min_steps`` environment steps and ``budget_s`` seconds);
     returns a leaderboard row. An episode that ends is reset, as a training loop does (the
-    vector env resets its worlds itself), and the resets count in the time."""
-    from pourbench.envs import default_solver_config
+    vector env resets its worlds itself), and the resets count in the time. With
+    ``baseline``, the same worlds stepped by :class:`~pourbench.bench.env_baseline.
+    LoopedPourBatch` (the step before issue 28, in this process) alternate step by step with
+    the case, so both see the same machine load."""
+    from pourbench.envs import PourConfig, default_solver_config
     from pourbench.envs.pour import PourEnv
     from pourbench.envs.vector import PourVectorEnv
 
@@ -105,17 +114,25 @@ def run_case(
         if front_end == "single" and (terminated or truncated):
             env.reset()
 
+    looped = _Looped(worlds, PourConfig(solver=scfg)) if baseline else None
     for _ in range(2):
         step()
-    steps, s0, t0 = 0, solver_s(), time.perf_counter()
-    while steps < min_steps or time.perf_counter() - t0 < budget_s:
+        if looped is not None:
+            looped.step()
+    steps, s0, wall, base_wall = 0, solver_s(), 0.0, 0.0
+    while steps < min_steps or wall < budget_s:
+        t0 = time.perf_counter()
         step()
+        wall += time.perf_counter() - t0
+        if looped is not None:
+            t0 = time.perf_counter()
+            looped.step()
+            base_wall += time.perf_counter() - t0
         steps += 1
-    wall = time.perf_counter() - t0
     in_solver = solver_s() - s0
     count, grams = particles()
     env.close()
-    return {
+    row = {
         "front_end": front_end,
         "device": device,
         "worlds": worlds,
@@ -126,6 +143,32 @@ def run_case(
         "s_per_vector_step": wall / steps,
         "host_share": max(0.0, 1.0 - in_solver / (workers * wall)),
     }
+    if looped is not None:
+        row["baseline_env_steps_per_s"] = worlds * steps / base_wall
+        row["speedup_vs_baseline"] = base_wall / wall
+    return row
+
+
+class _Looped:
+    """The baseline's worlds, reset with seed ``k`` for world ``k`` and reset again when
+    their episode ends (as the vector env does)."""
+
+    def __init__(self, worlds: int, config: Any) -> None:
+        from pourbench.bench.env_baseline import LoopedPourBatch
+
+        self.batch = LoopedPourBatch(worlds, config)
+        for w in range(worlds):
+            self.batch.reset_world(w, seed=w)
+        self.batch.flush()
+        self.action = np.tile(np.array([0.5, 1.0]), (worlds, 1))
+
+    def step(self) -> None:
+        _, _, terminated, truncated, _ = self.batch.step(self.action)
+        done = np.flatnonzero(terminated | truncated)
+        for w in done:
+            self.batch.reset_world(int(w))
+        if len(done):
+            self.batch.flush()
 
 
 def _particles(batch: Any, world: int) -> tuple[int, float]:
@@ -148,7 +191,10 @@ def run(args: argparse.Namespace) -> int:
             "per environment step). `env_steps_per_s` = worlds × steps / wall time; "
             "`workers`: processes the vector env's worlds are spread over; `host_share`: "
             "1 − (time in the solver's steps, summed over the processes) / (workers × wall "
-            "time).",
+            "time); `baseline_env_steps_per_s`: the same worlds stepped as before the batched "
+            "step (per-world MuJoCo stepping, coupling, sensor and evaluation loops; "
+            "`pourbench/bench/env_baseline.py`), in the same process, alternating step by step "
+            "with the case; `speedup_vs_baseline` = its wall time / the case's.",
             "",
             markdown_table(rows, COLUMNS),
             "",
