@@ -338,17 +338,9 @@ class PourBatch:
         the base's position, tilted by ``tilt`` about the y axis through the rim's centre,
         height ``rim_height`` above the base."""
         if worlds is None:
-            h, th, pos = self.rim_height, self.tilt, self.base.copy()
-        else:
-            w = np.asarray(worlds, int)
-            h, th, pos = self.rim_height[w], self.tilt[w], self.base[w]  # a copy
-        pos[:, 2] += h  # the rim's centre, which the tilt keeps in place
-        pos[:, 0] += np.sin(th) * -h
-        pos[:, 2] += np.cos(th) * -h
-        poses = np.zeros((len(th), 7))
-        poses[:, :3] = pos
-        poses[:, 4], poses[:, 6] = np.sin(th / 2), np.cos(th / 2)
-        return poses
+            return _rim_poses(self.base, self.tilt, self.rim_height)
+        w = np.asarray(worlds, int)
+        return _rim_poses(self.base[w], self.tilt[w], self.rim_height[w])
 
     def _place(self, worlds: list[int] | None = None) -> None:
         """Hand the pouring containers' poses of ``worlds`` (None: all) to the solver in one
@@ -549,16 +541,17 @@ class PourBatch:
         )
         if cfg.action_mode == "free":  # keep the base above the table
             new_base[:, 2] = np.maximum(new_base[:, 2], TABLE_HEIGHT)
-        old_base, old_tilt = self.base.copy(), self.tilt.copy()
-        for k in range(1, self.substeps + 1):
-            f = k / self.substeps
-            self.base = old_base + f * (new_base - old_base)
-            self.tilt = old_tilt + f * (new_tilt - old_tilt)
-            self._place()
+        # every substep's poses at once: base and tilt interpolated between control steps
+        frac = np.arange(1, self.substeps + 1) / self.substeps
+        bases = self.base + frac[:, None, None] * (new_base - self.base)
+        tilts = self.tilt + frac[:, None] * (new_tilt - self.tilt)
+        poses = _rim_poses(bases, tilts, self.rim_height)  # (substeps, n, 7)
+        for k in range(self.substeps):
+            self.solver.set_collider_poses(self.pour_col, poses[k])
             t0 = self._clock()
             self.solver.step()
             self.solver_seconds += self._clock() - t0
-            self.reactions.record(k - 1)
+            self.reactions.record(k)
         self.base, self.tilt = new_base, new_tilt
         self.max_tilt = np.maximum(self.max_tilt, self.tilt)
         self._sense(active)
@@ -745,6 +738,20 @@ class _ClearanceCheck:
 
 
 _SLACK = 1e-4  # m: bounding spheres this close go to the exact check
+
+
+def _rim_poses(base: np.ndarray, tilt: np.ndarray, rim_height: np.ndarray) -> np.ndarray:
+    """Poses (..., 7: x y z qx qy qz qw) of containers whose base point is ``base`` (..., 3),
+    tilted by ``tilt`` (...) about the y axis through the rim's centre, ``rim_height`` (m,
+    broadcast over the leading axes) above the base."""
+    h = np.broadcast_to(rim_height, tilt.shape)
+    poses = np.zeros((*tilt.shape, 7))
+    poses[..., :3] = base
+    poses[..., 2] += h  # the rim's centre, which the tilt keeps in place
+    poses[..., 0] += np.sin(tilt) * -h
+    poses[..., 2] += np.cos(tilt) * -h
+    poses[..., 4], poses[..., 6] = np.sin(tilt / 2), np.cos(tilt / 2)
+    return poses
 
 
 def _enclosing(pos: np.ndarray, rad: np.ndarray) -> tuple[np.ndarray, float]:

@@ -263,8 +263,8 @@ class ReactionLog:
     kept on the solver's device and read back in one copy.
 
     Call :meth:`record` (k) right after the solver's k-th step of a batch of ``steps``, then
-    :meth:`read` once. Recording is a device-side copy of the solver's reaction table (no
-    synchronisation), so it can sit in a captured sequence of launches.
+    :meth:`read` once. Recording is a copy of the solver's reaction table on its device (on
+    CUDA a device-to-device copy, no synchronisation; on the CPU a numpy copy between views).
     """
 
     def __init__(self, solver: PBFSolver, steps: int) -> None:
@@ -272,12 +272,23 @@ class ReactionLog:
         self.steps = check_int("steps", steps, minimum=1)
         self.slots = max(solver.num_body_slots, 1)
         self._log = wp.zeros(self.steps * self.slots * 3, dtype=wp.int64, device=solver.device)
+        # on the CPU the log and the table are written through numpy views (no launch)
+        self._host_log = self._log.numpy().reshape(self.steps, -1) if solver.device.is_cpu else None
+        self._table: wp.array | None = None
+        self._source: wp.array | np.ndarray | None = None
 
     def record(self, k: int) -> None:
         """Keep the reaction table of the solver's last step as entry ``k`` (0-based)."""
         table = self.solver.cols.force  # (slots, 3) in K.WRENCH_UNIT, rebuilt on upload
-        m = self.slots * 3
-        wp.copy(self._log, table.flatten(), dest_offset=k * m, count=m)
+        if table is not self._table:
+            self._table = table
+            cpu = self._host_log is not None
+            self._source = table.numpy().reshape(-1) if cpu else table.flatten()
+        if self._host_log is not None:
+            self._host_log[k] = self._source
+        else:
+            m = self.slots * 3
+            wp.copy(self._log, self._source, dest_offset=k * m, count=m)
 
     def read(self) -> np.ndarray:
         """(steps, slots, 3) reaction forces on the bodies, N (one device read)."""
