@@ -26,6 +26,9 @@ class UnknownNameError(PourbenchError):
         self.known = sorted(known)
         super().__init__(f"unknown {kind} {name!r}; known {kind}s: {', '.join(self.known)}")
 
+    def __reduce__(self) -> tuple:  # pickles (a vector env's worker sends it to the parent)
+        return (type(self), (self.kind, self.name, self.known))
+
 
 class InvalidParameterError(PourbenchError):
     """A numeric parameter that is NaN, infinite, or out of its allowed range."""
@@ -37,7 +40,11 @@ class ProfileFileError(PourbenchError):
     def __init__(self, path: object, key: str, problem: str) -> None:
         self.path = str(path)
         self.key = key
+        self.problem = problem
         super().__init__(f"{self.path}: key {key!r}: {problem}")
+
+    def __reduce__(self) -> tuple:  # pickles (a vector env's worker sends it to the parent)
+        return (type(self), (self.path, self.key, self.problem))
 
 
 def read_toml(path: str | os.PathLike[str]) -> dict:

@@ -93,3 +93,10 @@ def test_a_num_envs_too_large_is_refused_before_anything_is_allocated() -> None:
         gym.make_vec("pourbench/Pour-v0", num_envs=10**9, vectorization_mode="vector_entry_point")
     with pytest.raises(CapacityError, match="GiB"):
         PourBatch(10**9)
+
+
+def test_sb3_env_checker() -> None:
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.env_checker import check_env
+
+    check_env(PourEnv(max_steps=10), warn=True)

@@ -140,3 +140,32 @@ def test_the_baseline_batch_steps_like_the_env_it_replaced() -> None:
             break
     assert obs.shape == (1, 12) and info["poured_g"][0] > 50.0
     assert info["measured_g"][0] == pytest.approx(info["poured_g"][0], abs=8.0)
+
+
+def test_a_refused_reset_in_the_workers_changes_nothing_and_the_env_goes_on() -> None:
+    """Bad reset options raise pourbench's own error from every group (the same one as in
+    this process), no world is reset, and the env keeps stepping."""
+    from world_probes import world_steps
+
+    from pourbench.errors import UnknownNameError
+
+    venv = PourVectorEnv(2, workers=2, liquid="water")
+    venv.reset(seed=0)
+    venv.step(np.zeros((2, 2)))
+    with pytest.raises(UnknownNameError, match="unknown liquid 'mercury'"):
+        venv.reset(options={"liquid": "mercury"})
+    assert [venv.call_world(k, world_steps) for k in range(2)] == [1, 1]
+    obs, *_ = venv.step(np.zeros((2, 2)))
+    assert obs.shape == (2, 12) and np.all(np.isfinite(obs))
+    venv.close()
+
+
+def test_pourbench_errors_pickle_as_themselves() -> None:
+    """A worker's error reaches the parent pickled: pourbench's errors keep type and text."""
+    import pickle
+
+    from pourbench.errors import ProfileFileError, UnknownNameError
+
+    for exc in (UnknownNameError("liquid", "mercury", ["water"]), ProfileFileError("a", "k", "x")):
+        back = pickle.loads(pickle.dumps(exc))
+        assert type(back) is type(exc) and str(back) == str(exc)

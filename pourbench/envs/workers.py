@@ -18,6 +18,7 @@ holds it.
 from __future__ import annotations
 
 import os
+import pickle
 import socket
 import subprocess
 import sys
@@ -255,7 +256,7 @@ def serve(conn: Connection) -> None:
     except EOFError:
         return
     except Exception as exc:
-        conn.send((False, exc))
+        conn.send((False, _portable(exc)))
         return
     conn.send((True, None))
     while True:
@@ -269,12 +270,19 @@ def serve(conn: Connection) -> None:
         try:
             out = getattr(group, method)(*args)
         except Exception as exc:
-            try:
-                conn.send((False, exc))
-            except Exception:  # an exception that does not pickle
-                conn.send((False, WorkerError(f"{type(exc).__name__}: {exc}")))
+            conn.send((False, _portable(exc)))
             continue
         conn.send((True, out))
+
+
+def _portable(exc: Exception) -> Exception:
+    """``exc`` if it survives pickling (the parent re-raises it as is), else a
+    ``RuntimeError`` carrying its type and message."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+    except Exception:
+        return RuntimeError(f"in a Pour-v0 worker: {type(exc).__name__}: {exc}")
+    return exc
 
 
 def default_workers(num_envs: int) -> int:
