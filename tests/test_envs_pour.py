@@ -384,6 +384,30 @@ def test_rgb_render_headless() -> None:
     assert int(res.stdout.split("DIFF")[1]) > 200  # the liquid's particles are drawn
 
 
+def test_vector_render_with_workers_headless() -> None:
+    """The vector env renders every world, the worker's too: world 1's image is the single
+    env's given seed + 1."""
+    code = (
+        "import numpy as np, pourbench, gymnasium as gym\n"
+        "kw = dict(render_mode='rgb_array', liquid='water')\n"
+        "opts = {'start': (-0.02, 0.0, 0.12)}\n"
+        "venv = gym.make_vec('pourbench/Pour-v0', num_envs=2,"
+        " vectorization_mode='vector_entry_point', workers=2, **kw)\n"
+        "venv.reset(seed=0, options=opts)\n"
+        "imgs = venv.render()\n"
+        "assert len(imgs) == 2 and all(i.shape == (480, 640, 3) for i in imgs)\n"
+        "env = gym.make('pourbench/Pour-v0', **kw)\n"
+        "env.reset(seed=1, options=opts)\n"
+        "print('SAME', int(np.array_equal(imgs[1], env.render())))\n"
+        "venv.close()\n"
+    )
+    res = _headless(code)
+    if res.returncode and ("OpenGL" in res.stderr or "EGL" in res.stderr):
+        pytest.skip(f"no offscreen OpenGL here: {res.stderr.strip().splitlines()[-1]}")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split("SAME")[1].strip() == "1"
+
+
 def test_no_offscreen_library_leaves_the_backend_unset() -> None:
     """Headless, with neither EGL nor OSMesa installed (a bare GPU server): import pourbench
     chooses no backend, since MuJoCo imports the chosen one at its own import and a missing
