@@ -15,11 +15,14 @@ from gymnasium.utils.env_checker import check_env
 from world_probes import poison, world_steps
 
 import pourbench  # noqa: F401  (registers the ids)
+from pourbench.containers import container_names
 from pourbench.envs.action_handler import ActionLimits
+from pourbench.envs.core import PourBatch, PourConfig
 from pourbench.envs.pour import PourEnv
 from pourbench.envs.reward import RewardConfig
 from pourbench.envs.vector import PourVectorEnv
 from pourbench.errors import InvalidParameterError
+from pourbench.fluids.params import liquid_profile
 from pourbench.fluids.solver import inverse_transform_points
 
 ABOVE = (-0.02, 0.0, 0.12)  # start just above the receiving tray: pours within ~20 steps
@@ -543,3 +546,33 @@ def test_drawn_containers_hold_the_asked_target() -> None:
 def test_bad_settings_are_refused_when_the_env_is_made(bad: dict, name: str) -> None:
     with pytest.raises(ValueError, match=name):
         PourEnv(**bad)
+
+
+def hold_filled(container_set: str, names: tuple[str, ...], liquids: tuple[str, ...]) -> None:
+    """Each of ``names`` filled with each of ``liquids`` to the largest mass Pour-v0 accepts
+    (85 % of its capacity), one world each, held upright and still for 3 s at Pour-v0's
+    defaults: no world diverges and no liquid leaves its container."""
+    cases = [(c, liq) for c in names for liq in liquids]
+    batch = PourBatch(len(cases), PourConfig(container_set=container_set))
+    for w, (name, liq) in enumerate(cases):
+        cap = 0.85 * batch.capacity_g(name, liquid_profile(liq).density)
+        opts = {"container": name, "liquid": liq, "initial_g": 0.999 * cap, "target_g": 50.0}
+        batch.reset_world(w, seed=w, options=opts)
+    batch.flush()
+    for _ in range(30):  # 3 s of 10 Hz control steps, every action zero: nothing moves
+        *_, info = batch.step(np.zeros((len(cases), 2)))
+        held = info["spilled_g"] + info["in_flight_g"] + info["poured_g"]
+        assert not info["sim_diverged"].any(), [cases[w] for w in info["sim_diverged"].nonzero()[0]]
+        assert (held == 0.0).all(), {cases[w]: held[w] for w in np.flatnonzero(held)}
+
+
+def test_deep_containers_filled_to_the_brim_hold_their_water() -> None:
+    hold_filled(
+        "novel", ("bottle_wine", "bottle_water", "measuring_cylinder", "pitcher"), ("water",)
+    )
+
+
+@pytest.mark.slow
+def test_every_container_filled_to_the_brim_holds_water_and_honey() -> None:
+    for container_set in ("training", "novel"):
+        hold_filled(container_set, container_names(container_set), ("water", "honey"))

@@ -10,6 +10,7 @@ the speed-up is measured, not quoted.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -21,6 +22,8 @@ import warp as wp
 
 from pourbench.bench._report import devices, markdown_table, report_stem, write_report
 from pourbench.bench.fluids_baseline import BaselinePBF
+from pourbench.envs.core import default_solver_config
+from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
 from pourbench.fluids.shapes import BoxShell
 from pourbench.fluids.solver import PBFSolver, SolverConfig
 from pourbench.fluids.validation import (
@@ -30,6 +33,7 @@ from pourbench.fluids.validation import (
     REST_WINDOW_S,
     VISCOUS_ORDER,
     dam_break_fronts,
+    deep_column,
     floating_box,
     half_pour_times,
     rest_in_cup,
@@ -83,8 +87,9 @@ def _time_steps(step: Any, sync: Any, budget_s: float, min_steps: int = 3) -> tu
 def run_case(
     device: str, n: int, worlds: int = 1, budget_s: float = 2.0, pair_lists: str = "auto"
 ) -> dict[str, Any]:
-    """Time the solver and the baseline on the dam-break block; one row of the table."""
-    cfg = SolverConfig(device=device, iterations=4, pair_lists=pair_lists)
+    """Time the solver and the baseline on the dam-break block; one row of the table. The
+    solver runs a fixed 4 iterations, as the baseline does (no ``max_density_error`` extras)."""
+    cfg = SolverConfig(device=device, iterations=4, max_iterations=4, pair_lists=pair_lists)
     pts, tank = _block(n // worlds, cfg.spacing)
     solver = PBFSolver(worlds, cfg)
     for w in range(worlds):
@@ -146,6 +151,81 @@ COLUMNS = [
 ]
 
 
+HOLD_COLUMNS = [
+    "scene",
+    "settings",
+    "ms_per_step_fixed",
+    "ms_per_step",
+    "cost_ratio",
+    "iterations_mean",
+    "iterations_max",
+]
+
+
+def _pour_steps(liquid: str, config: SolverConfig, seconds: float) -> tuple[float, np.ndarray]:
+    """Seconds of solver steps, and each step's iterations, of a 200 g pour of ``liquid``
+    (the tilt schedule of the validation pours) at ``config``."""
+    scene = two_cup_scene(liquid, 200.0, config=config)
+    wall, its = 0.0, []
+    while scene.solver.time < seconds - 1e-9:
+        scene.set_tilt(tilt_schedule(scene.solver.time))
+        t0 = time.perf_counter()
+        scene.step()
+        wall += time.perf_counter() - t0
+        its.append(scene.solver.iterations_used()[0])
+    return wall, np.array(its)
+
+
+def holding_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, Any]]:
+    """What the extra iterations of ``SolverConfig.max_density_error`` cost: a water and a
+    honey pour at Pour-v0's settings, each timed against the same pour on its fixed
+    ``iterations`` (the solver without extras) in the same process, alternated twice (the
+    faster of two runs each); and the 30 cm column at the defaults, which on its fixed 4
+    iterations blows up."""
+    rows = []
+    base = dataclasses.replace(default_solver_config(), device=device)
+    fixed = dataclasses.replace(base, max_iterations=base.iterations)
+    settings = f"Pour-v0: {base.spacing * 1e3:g} mm, 1/{1 / base.dt:.0f} s, {base.iterations} its"
+    for liquid in ("water", "honey"):
+        print(f"fluids: holding cost, {liquid} pour at Pour-v0's settings…", file=sys.stderr)
+        times: dict[str, list[float]] = {"fixed": [], "adaptive": []}
+        for _ in range(2):
+            times["fixed"].append(_pour_steps(liquid, fixed, seconds)[0])
+            wall, its = _pour_steps(liquid, base, seconds)
+            times["adaptive"].append(wall)
+        n = len(its)
+        fixed_ms, ms = 1e3 * min(times["fixed"]) / n, 1e3 * min(times["adaptive"]) / n
+        rows.append(
+            {
+                "scene": f"200 g {liquid} poured for {seconds:g} s",
+                "settings": settings,
+                "ms_per_step_fixed": fixed_ms,
+                "ms_per_step": ms,
+                "cost_ratio": ms / fixed_ms,
+                "iterations_mean": float(its.mean()),
+                "iterations_max": float(its.max()),
+            }
+        )
+    print("fluids: holding cost, 30 cm column…", file=sys.stderr)
+    cfg = SolverConfig(device=device)
+    t0 = time.perf_counter()
+    col = deep_column(window=(0.5, 1.0), config=cfg)
+    steps = round(1.0 / cfg.dt)
+    rows.append(
+        {
+            "scene": "30 cm water column, 4 × 4 cm box (fixed 4 its: blows up)",
+            "settings": f"defaults: {cfg.spacing * 1e3:g} mm, 1/{1 / cfg.dt:.0f} s, "
+            f"{cfg.iterations} its",
+            "ms_per_step_fixed": None,
+            "ms_per_step": 1e3 * (time.perf_counter() - t0) / steps,
+            "cost_ratio": None,
+            "iterations_mean": col.iterations,
+            "iterations_max": None,
+        }
+    )
+    return rows
+
+
 def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
     """Run the physical validation experiments on ``device``; their numbers and a markdown
     table."""
@@ -162,6 +242,8 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
     afloat = floating_box(device=device)
     t_half, left = half_pour_times(device=device)
     fronts = dam_break_fronts(device=device)
+    column = deep_column(config=SolverConfig(device=device))
+    blowup = deep_column(window=(0.05, 0.3), config=SolverConfig(device=device, max_iterations=4))
     out: dict[str, Any] = {
         "device": device,
         "rest_density_error": rest.density_error,
@@ -182,6 +264,12 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
         "half_pour_time_s": dict(zip(VISCOUS_ORDER, t_half.tolist(), strict=True)),
         "residue_after_4s_g": dict(zip(VISCOUS_ORDER, left.tolist(), strict=True)),
         "dam_break_Z": {str(k): v for k, v in fronts.items()},
+        "column_bottom_density": column.bottom_density,
+        "column_height_ratio": column.height_ratio,
+        "column_lost": column.lost,
+        "column_iterations": column.iterations,
+        "column_fixed_4_diverged": blowup.diverged,
+        "column_fixed_4_lost": blowup.lost,
     }
     lines = [
         "| check | measured | expected |",
@@ -213,6 +301,16 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
             f"| {liq}: half-pour time (s) / left after 4 s (g) | {t:.3f} / {g:.1f} | "
             "increasing with viscosity |"
         )
+    lines += [
+        f"| 30 cm column (4 × 4 cm box, 0.5–1 s): lowest 2 cm mass / volume over rest | "
+        f"{column.bottom_density:.3f} | ≤ 1.03 |",
+        f"| 30 cm column: surface over its rest-density height | {column.height_ratio:.3f} | "
+        "1 ± 0.03 |",
+        f"| 30 cm column: particles out of the box / density iterations a step | {column.lost}"
+        f" / {column.iterations:.1f} | 0 / — |",
+        f"| 30 cm column on a fixed 4 iterations (0.05–0.3 s): flagged diverged / particles "
+        f"out | {blowup.diverged} / {blowup.lost} | blows up, flagged |",
+    ]
     for T, z in fronts.items():
         lines.append(
             f"| dam break Z at T = {T:g} | {z:.2f} | {MARTIN_MOYCE[T]:.2f} ± 15 % "
@@ -229,6 +327,7 @@ def run(args: argparse.Namespace) -> int:
         rows.append(run_case(device, n, worlds, pair_lists=lists))
     checks_device = "cuda" if choice == "cuda" else "cpu"
     checks, checks_md = ({}, "") if args.quick else validation(checks_device)
+    hold = [] if args.quick else holding_cost(checks_device)
     body = "\n".join(
         [
             "Dam-break block in a tank (width a, height 2a, at most 25 cm tall: larger blocks "
@@ -249,6 +348,16 @@ def run(args: argparse.Namespace) -> int:
             "`pourbench bench fluids --device cuda` writes the CUDA rows alone to "
             "`fluids_cuda.md`.",
             "",
+            f"## Cost of liquid that holds ({checks_device})" if hold else "",
+            "",
+            "A world iterates past `iterations` while some particle is more than "
+            "`max_density_error` too dense (`SolverConfig`; Pour-v0 15 %, the defaults 3 %). "
+            "`ms_per_step_fixed`: the same run on its fixed `iterations`, in the same process."
+            if hold
+            else "",
+            "",
+            markdown_table(hold, HOLD_COLUMNS) if hold else "",
+            "",
             f"## Physical checks ({checks_device})" if checks_md else "",
             "",
             checks_md,
@@ -261,10 +370,10 @@ def run(args: argparse.Namespace) -> int:
             out=args.out,
             title="Fluid solver: throughput and physical checks",
             body_md=body,
-            extra={"validation": checks} if checks else None,
+            extra={"validation": checks, "holding_cost": hold} if checks else None,
         )
     if args.json:
-        print(json.dumps({"suite": "fluids", "rows": rows, "validation": checks}))
+        print(json.dumps({"suite": "fluids", "rows": rows, "validation": checks, "holding": hold}))
     else:
         print(markdown_table(rows, COLUMNS))
     return 0

@@ -396,6 +396,14 @@ def density_and_lambda(
     return wp.vec2(rho, -c / (a[4] + wp.dot(grad_i, grad_i) + eps))
 
 
+@wp.func
+def record_worst(worst: wp.array(dtype=float), w: int, rho: float):
+    """Raise world ``w``'s largest density error ρ/ρ0 − 1 this iteration (the atomic runs
+    only when the record is beaten, so threads seldom contend)."""
+    if rho - 1.0 > worst[w]:
+        wp.atomic_max(worst, w, rho - 1.0)
+
+
 @wp.kernel
 def compute_lambda(
     sums: wp.array(dtype=vec5),
@@ -405,16 +413,67 @@ def compute_lambda(
     h: float,
     w0: float,
     eps: float,
+    world: wp.array(dtype=wp.int32),
+    active: wp.array(dtype=wp.int32),
     lam: wp.array(dtype=float),
     density: wp.array(dtype=float),
+    worst: wp.array(dtype=float),
 ):
-    """λ of every particle from its density sums (half lists; full lists compute it at the end
-    of their density pass); clears the sums."""
+    """λ of every particle of an active world from its density sums (half lists; full lists
+    compute it at the end of their density pass); clears the sums and records each world's
+    largest density error (:func:`record_worst`)."""
     i = wp.tid()
+    w = world[i]
+    if active[w] == 0:
+        return
     d = density_and_lambda(sums[i], h, w0, eps, wall[i], p[i], wall_coef)
     density[i] = d[0]
     lam[i] = d[1]
     sums[i] = vec5(0.0)
+    record_worst(worst, w, d[0])
+
+
+SHARE_SLOPE = wp.constant(2.0)
+"""How steeply a world's share of an extra iteration grows with its density error over the
+tolerance: all of it at 1.5 × the tolerance (:func:`update_active`)."""
+
+
+@wp.kernel
+def start_worlds(
+    active: wp.array(dtype=wp.int32),
+    share: wp.array(dtype=float),
+    extra: wp.array(dtype=float),
+):
+    """Every world takes the whole of a step's first ``iterations`` density iterations."""
+    w = wp.tid()
+    active[w] = 1
+    share[w] = 1.0
+    extra[w] = 0.0
+
+
+@wp.kernel
+def update_active(
+    worst: wp.array(dtype=float),
+    tolerance: float,
+    active: wp.array(dtype=wp.int32),
+    share: wp.array(dtype=float),
+    extra: wp.array(dtype=float),
+    any_active: wp.array(dtype=wp.int32),
+):
+    """After an iteration: a world takes part in one more while its largest density error
+    exceeds ``tolerance``, with a share of its correction that grows from 0 at the tolerance
+    to all of it at 1.5 × the tolerance, so that the work a step does varies smoothly with the
+    error (a whole iteration more or less would jolt the liquid). A world within tolerance
+    stays done for the step. ``any_active`` is set (zero on entry) if some world goes on;
+    ``extra`` sums each world's shares."""
+    w = wp.tid()
+    if active[w] != 0 and worst[w] > tolerance:
+        f = wp.min(SHARE_SLOPE * (worst[w] - tolerance) / tolerance, 1.0)
+        share[w] = f
+        extra[w] = extra[w] + f
+        any_active[0] = 1
+    else:
+        active[w] = 0
 
 
 # ------------------------------------------------------------ pair passes (both list modes)
@@ -600,10 +659,13 @@ def pair_kernels(half: bool) -> PairKernels:
         eps: float,
         wall: wp.array(dtype=wp.vec4),
         wall_coef: float,
+        world: wp.array(dtype=wp.int32),
+        active: wp.array(dtype=wp.int32),
         sums: wp.array(dtype=vec5),
         pair: wp.array(dtype=wp.vec2),
         lam: wp.array(dtype=float),
         density: wp.array(dtype=float),
+        worst: wp.array(dtype=float),
     ):
         """Pair sums of the density constraint: Σ_j ∇_i C, Σ_j W_ij and Σ_j |∇_j C|². Half lists
         add them to ``sums`` (zero on entry; :func:`compute_lambda` turns them into λ and clears
@@ -611,9 +673,12 @@ def pair_kernels(half: bool) -> PairKernels:
         and λ directly.
 
         With half lists each pair's gradient factor (∇W_ij = factor · r_ij) and tensile term
-        s_corr (:func:`density_pair`) go to ``pair`` for :func:`compute_delta`.
+        s_corr (:func:`density_pair`) go to ``pair`` for :func:`compute_delta`. Particles of
+        worlds no longer ``active`` (see :func:`update_active`) are skipped.
         """
         i = wp.tid()
+        if active[world[i]] == 0:
+            return
         pi = p[i]
         acc = vec5(0.0)
         # while-loops compile to tighter CPU code than range() loops in Warp
@@ -650,6 +715,7 @@ def pair_kernels(half: bool) -> PairKernels:
             d = density_and_lambda(acc, h, w0, eps, wall[i], pi, wall_coef)
             density[i] = d[0]
             lam[i] = d[1]
+            record_worst(worst, world[i], d[0])
 
     @wp.kernel
     def compute_delta(
@@ -665,12 +731,17 @@ def pair_kernels(half: bool) -> PairKernels:
         scorr_k: float,
         scorr_n: float,
         scorr_wdq: float,
+        world: wp.array(dtype=wp.int32),
+        active: wp.array(dtype=wp.int32),
         delta: wp.array(dtype=wp.vec3),
     ):
         """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi); half lists read the pair terms
         cached by :func:`density_sums` and add each pair to both particles, full lists
-        recompute them (``delta`` is zero on entry; :func:`apply_delta` clears it)."""
+        recompute them (``delta`` is zero on entry; :func:`apply_delta` clears it). Worlds no
+        longer ``active`` are skipped."""
         i = wp.tid()
+        if active[world[i]] == 0:
+            return
         pi = p[i]
         li = lam[i]
         dp = wp.vec3(0.0)
@@ -1158,7 +1229,8 @@ def sweep(cols: Colliders, c: int, a: wp.vec3, b: wp.vec3, radius: float):
     Sphere tracing against the level min(``radius``, start distance) / 2: a particle that
     starts in contact with one wall and slides along it still stops at the next wall, and a
     wall of any thickness is never crossed. A start deeper inside than ``radius`` is not
-    traced (the projection pushes it out)."""
+    traced (the projection pushes it out). A move shorter than its start's distance to the
+    level costs one SDF evaluation."""
     hit = int(0)
     q = b
     start = a
@@ -1166,19 +1238,18 @@ def sweep(cols: Colliders, c: int, a: wp.vec3, b: wp.vec3, radius: float):
     for _contact in range(3):
         seg = end - start
         seg_len = wp.length(seg)
-        s0 = sdf_of(cols, c, start)
-        if s0[0] <= -radius or seg_len <= 1.0e-9:
+        s = sdf_of(cols, c, start)
+        if s[0] <= -radius or seg_len <= 1.0e-9:
             q = end
             break
-        level = 0.5 * wp.min(radius, wp.abs(s0[0]))
+        level = 0.5 * wp.min(radius, wp.abs(s[0]))
         t = float(0.0)
         touched = int(0)
         for _it in range(24):
-            pt = start + seg * t
-            s = sdf_of(cols, c, pt)
             gap = s[0] - level
             if gap <= 1.0e-5:
                 touched = 1
+                pt = start + seg * t
                 na = wp.vec3(s[1], s[2], s[3])
                 rest = end - pt  # only the sliding part of the remaining motion goes on
                 start = pt
@@ -1188,6 +1259,7 @@ def sweep(cols: Colliders, c: int, a: wp.vec3, b: wp.vec3, radius: float):
             t = t + gap / seg_len
             if t >= 1.0:
                 break
+            s = sdf_of(cols, c, start + seg * t)
         if touched == 0:
             q = end
             break
@@ -1211,6 +1283,8 @@ def apply_delta(
     wall_coef: float,
     h: float,
     w0: float,
+    active: wp.array(dtype=wp.int32),
+    share: wp.array(dtype=float),
     push: wp.array(dtype=float),
     clear: wp.array(dtype=float),
 ):
@@ -1223,9 +1297,14 @@ def apply_delta(
     dt/m) that Coulomb friction in :func:`collide` scales with. A particle whose clearance
     (``clear``, see :func:`predict`) outlasts its move skips the colliders; otherwise the
     clearance is measured again (negative after a projection, so the next pass looks again).
+    Worlds no longer ``active`` are skipped; in an extra iteration a world moves by its
+    ``share`` of the correction (see :func:`update_active`).
     """
     i = wp.tid()
     w = world[i]
+    if active[w] == 0:  # the world's density is within tolerance (see update_active)
+        return
+    sor = sor * share[w]
     p0 = p[i]
     pi = p0 + delta[i] * sor
     delta[i] = wp.vec3(0.0)
@@ -1237,7 +1316,9 @@ def apply_delta(
         push_off = wp.vec3(wl[0], wl[1], wl[2]) * (sor * li * ws[1] / w0)
         pi = pi + push_off
         add_reaction(cols, wc, push_off, pi, mass[w], dt)
-    room = clear[i] - wp.length(pi - p0)
+    clear0 = clear[i]
+    move = wp.length(pi - p0)
+    room = clear0 - move
     if room > CLEAR_MARGIN:  # no collider within reach
         clear[i] = room
         p[i] = pi
@@ -1248,11 +1329,16 @@ def apply_delta(
         tf_inv = wp.transform_inverse(tf)
         b = wp.transform_point(tf_inv, pi)
         lq = wp.length(b)
-        if lq > cols.bound[c] + radius + wp.length(pi - p0):
+        if lq > cols.bound[c] + radius + move:
             room = wp.min(room, lq - cols.bound[c] - radius)
             continue  # the move stays out of the collider's bounding sphere: no contact
-        # swept from the iteration's start, so that a large correction never crosses a wall
-        q, hit = sweep(cols, c, wp.transform_point(tf_inv, p0), b, radius)
+        # swept from the iteration's start, so that a large correction never crosses a wall;
+        # a move shorter than the clearance (at p0, a lower bound on every collider's distance
+        # less the radius) plus half a radius cannot reach the sweep's level: not traced
+        q = b
+        hit = int(0)
+        if move > clear0 + 0.5 * radius - 2.0e-5:
+            q, hit = sweep(cols, c, wp.transform_point(tf_inv, p0), b, radius)
         s = sdf_of(cols, c, q)
         room = wp.min(room, s[0] - radius)
         if s[0] < radius or hit == 1:

@@ -35,6 +35,7 @@ import math
 import operator
 import re
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -82,7 +83,14 @@ class SolverConfig:
     Attributes:
         spacing: particle rest spacing, m (particle mass = density × spacing³).
         dt: time step, s.
-        iterations: Jacobi density iterations per step.
+        iterations: Jacobi density iterations every world takes each step.
+        max_density_error: after those, a world iterates on while its largest density error
+            (ρ/ρ0 − 1 of any particle, measured in the last iteration) exceeds this, up to
+            ``max_iterations`` in all. A fixed count leaves a column compressed in proportion
+            to its depth (Jacobi spreads a correction a kernel radius an iteration), so deep
+            liquid takes more iterations and a shallow cup none (docs/contact.md).
+        max_iterations: cap on a world's density iterations in a step (``iterations`` turns the
+            extra iterations off).
         smoothing: kernel radius h as a multiple of ``spacing``.
         relaxation: constraint-force mixing ε as a fraction of a full neighbourhood's Σ|∇C|².
         rest_packing: the kernel sum of a particle in the settled liquid at number density
@@ -144,6 +152,8 @@ class SolverConfig:
     spacing: float = 0.005
     dt: float = 1.0 / 240.0
     iterations: int = 4
+    max_density_error: float = 0.03
+    max_iterations: int = 64
     smoothing: float = 2.0
     relaxation: float = 0.01
     rest_packing: float = 0.99
@@ -187,8 +197,10 @@ class SolverConfig:
         ):
             check_finite(name, getattr(self, name), minimum=0.0)
         check_finite("sor", self.sor, minimum=1e-9)
+        check_finite("max_density_error", self.max_density_error, minimum=0.0)
         for name, minimum in (("iterations", 1), ("max_neighbours", 1), ("reorder_every", 0)):
             check_int(name, getattr(self, name), minimum=minimum)
+        check_int("max_iterations", self.max_iterations, minimum=self.iterations)
         if self.pair_lists not in ("auto", "half", "full"):
             raise InvalidParameterError(
                 f"pair_lists must be 'auto', 'half' or 'full', got {self.pair_lists!r}"
@@ -725,8 +737,16 @@ class PBFSolver:
         self.cell = wp.zeros(max(n, 1), dtype=wp.vec3i, device=dev)
         self.cell_sorted = wp.zeros(max(n, 1), dtype=wp.vec3i, device=dev)
         self._upload_poses(prev_too=True)
+        # per world: taking part in the step's iterations and with what share of a correction,
+        # extra iterations so far, and the largest density error of the last iteration (see
+        # SolverConfig.max_density_error)
+        self.active = wp.ones(self.num_worlds, dtype=wp.int32, device=dev)
+        self.share = wp.ones(self.num_worlds, dtype=float, device=dev)
+        self.extra = wp.zeros(self.num_worlds, dtype=float, device=dev)
+        self.worst = wp.zeros(self.num_worlds, dtype=float, device=dev)
+        self.any_active = wp.zeros(1, dtype=wp.int32, device=dev)
         self._cmds: dict[str, wp.Launch] = {}
-        self._graph: wp.Graph | None = None  # the recorded step, replayed
+        self._graphs: dict[str, wp.Graph] = {}  # the recorded parts of a step, replayed
         self._moved = False  # x_prev holds the start of a step whose end is x
         self._dirty = False
 
@@ -812,9 +832,15 @@ class PBFSolver:
             self._step_once()
 
     def _launch(
-        self, key: str, kernel: wp.Kernel, inputs: list, outputs: list | None = None
+        self,
+        key: str,
+        kernel: wp.Kernel,
+        inputs: list,
+        outputs: list | None = None,
+        dim: int | None = None,
     ) -> None:
-        """Launch ``kernel`` over the particles, replaying a recorded launch after the first.
+        """Launch ``kernel`` over the particles (or ``dim`` threads), replaying a recorded launch
+        after the first.
 
         Packing a launch's arguments costs more Python time than a small kernel runs, so each
         distinct launch is recorded once per upload and replayed; the arrays it binds are
@@ -824,7 +850,7 @@ class PBFSolver:
         if cmd is None:
             cmd = wp.launch(
                 kernel,
-                self.n,
+                self.n if dim is None else dim,
                 inputs=inputs,
                 outputs=outputs or [],
                 device=self.device,
@@ -865,20 +891,44 @@ class PBFSolver:
             self._advance_clock()
             return
         # on CUDA the step's sorts allocate scratch memory, which a graph holds only from a pool
-        if cfg.graph and (self.device.is_cpu or wp.is_mempool_enabled(self.device)):
-            if self._graph is None:
-                with wp.ScopedCapture(device=self.device) as capture:
-                    self._step_kernels()
-                self._graph = capture.graph
-            wp.capture_launch(self._graph)
-        else:
-            self._step_kernels()
+        graphs = cfg.graph and (self.device.is_cpu or wp.is_mempool_enabled(self.device))
+        self._run("start", self._step_start, graphs)
+        for _ in range(cfg.max_iterations - cfg.iterations):
+            if not self.any_active.numpy()[0]:  # on CUDA a 4-byte read-back
+                break
+            self._run("extra", self._extra_iteration, graphs)
+        self._run("end", self._step_end, graphs)
         self._moved = True
         self._advance_clock()
 
-    def _step_kernels(self) -> None:
-        """The launches of one step (everything between the host's per-step checks)."""
+    def _run(self, key: str, launches: Callable[[], None], graphs: bool) -> None:
+        """Run one part of a step: recorded once as a graph and replayed, or launched."""
+        if not graphs:
+            launches()
+            return
+        graph = self._graphs.get(key)
+        if graph is None:
+            with wp.ScopedCapture(device=self.device) as capture:
+                launches()
+            graph = self._graphs[key] = capture.graph
+        wp.capture_launch(graph)
+
+    def iterations_used(self) -> np.ndarray:
+        """Per world, the density iterations of the last step: ``iterations`` plus the shares
+        of the extra ones ``max_density_error`` called for (a float)."""
+        extra = np.zeros(self.num_worlds) if self._dirty else self.extra.numpy()
+        return self.config.iterations + extra.astype(float)
+
+    def _step_start(self) -> None:
+        """Predict, list neighbours, and every world's first ``iterations`` iterations."""
         cfg = self.config
+        self._launch(
+            "start_worlds",
+            K.start_worlds,
+            [],
+            [self.active, self.share, self.extra],
+            self.num_worlds,
+        )
         self.cols.force.zero_()
         self.cols.torque.zero_()
         self.push.zero_()
@@ -901,74 +951,122 @@ class PBFSolver:
         )
         self._build_neighbours()
         for _ in range(cfg.iterations):
+            self._density_iteration()
+        if cfg.max_iterations > cfg.iterations:
+            self._update_active()
+
+    def _extra_iteration(self) -> None:
+        """One more iteration for the worlds still above ``max_density_error``."""
+        self._density_iteration(extra=True)
+        self._update_active()
+
+    def _update_active(self) -> None:
+        self.any_active.zero_()
+        self._launch(
+            "update_active",
+            K.update_active,
+            [self.worst, self.config.max_density_error],
+            [self.active, self.share, self.extra, self.any_active],
+            self.num_worlds,
+        )
+
+    def _density_iteration(self, extra: bool = False) -> None:
+        """One Jacobi iteration of the density constraints (worlds not ``active`` skip it).
+        An ``extra`` one (past ``iterations``) leaves out the tensile term s_corr, so that the
+        artificial pressure a step applies does not grow with the iterations it takes."""
+        cfg = self.config
+        tag = "_extra" if extra else ""
+        scorr = 0.0 if extra else self.scorr_scale
+        self.worst.zero_()
+        self._launch(
+            "density_sums" + tag,
+            self.pairk.density_sums,
+            [
+                self.p,
+                self.nbr,
+                self.nbr_start,
+                self.nbr_count,
+                self.nbr_stride,
+                cfg.h,
+                self.grad_c,
+                scorr,
+                cfg.scorr_n,
+                self.scorr_wdq,
+                self.w0,
+                self.eps,
+                self.wall,
+                self.wall_coef,
+                self.world,
+                self.active,
+            ],
+            [self.sums, self.pair, self.lam, self.density, self.worst],
+        )
+        if self.half_lists:  # full lists compute λ in the density pass
             self._launch(
-                "density_sums",
-                self.pairk.density_sums,
+                "compute_lambda" + tag,
+                K.compute_lambda,
                 [
+                    self.sums,
                     self.p,
-                    self.nbr,
-                    self.nbr_start,
-                    self.nbr_count,
-                    self.nbr_stride,
-                    cfg.h,
-                    self.grad_c,
-                    self.scorr_scale,
-                    cfg.scorr_n,
-                    self.scorr_wdq,
-                    self.w0,
-                    self.eps,
                     self.wall,
                     self.wall_coef,
-                ],
-                [self.sums, self.pair, self.lam, self.density],
-            )
-            if self.half_lists:  # full lists compute λ in the density pass
-                self._launch(
-                    "compute_lambda",
-                    K.compute_lambda,
-                    [self.sums, self.p, self.wall, self.wall_coef, cfg.h, self.w0, self.eps],
-                    [self.lam, self.density],
-                )
-            self._launch(
-                "compute_delta",
-                self.pairk.compute_delta,
-                [
-                    self.p,
-                    self.nbr,
-                    self.nbr_start,
-                    self.nbr_count,
-                    self.nbr_stride,
-                    self.lam,
-                    self.pair,
                     cfg.h,
-                    self.grad_c,
-                    self.scorr_scale,
-                    cfg.scorr_n,
-                    self.scorr_wdq,
-                ],
-                [self.delta],
-            )
-            self._launch(
-                "apply_delta",
-                K.apply_delta,
-                [
-                    self.p,
-                    self.delta,
-                    cfg.sor,
+                    self.w0,
+                    self.eps,
                     self.world,
-                    self.cols,
-                    self.mass,
-                    cfg.radius,
-                    cfg.dt,
-                    self.lam,
-                    self.wall,
-                    self.wall_collider,
-                    self.wall_coef,
-                    cfg.h,
-                    self.w0,
+                    self.active,
                 ],
-                [self.push, self.clear],
+                [self.lam, self.density, self.worst],
             )
+        self._launch(
+            "compute_delta" + tag,
+            self.pairk.compute_delta,
+            [
+                self.p,
+                self.nbr,
+                self.nbr_start,
+                self.nbr_count,
+                self.nbr_stride,
+                self.lam,
+                self.pair,
+                cfg.h,
+                self.grad_c,
+                scorr,
+                cfg.scorr_n,
+                self.scorr_wdq,
+                self.world,
+                self.active,
+            ],
+            [self.delta],
+        )
+        self._launch(
+            "apply_delta" + tag,
+            K.apply_delta,
+            [
+                self.p,
+                self.delta,
+                cfg.sor,
+                self.world,
+                self.cols,
+                self.mass,
+                cfg.radius,
+                cfg.dt,
+                self.lam,
+                self.wall,
+                self.wall_collider,
+                self.wall_coef,
+                cfg.h,
+                self.w0,
+                self.active,
+                self.share,
+            ],
+            [self.push, self.clear],
+        )
+
+    def _step_end(self) -> None:
+        """Swept collision, velocity update and the velocity filters."""
+        cfg = self.config
+        P = self.params
         self._launch(
             "collide",
             K.collide,
