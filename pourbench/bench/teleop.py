@@ -406,7 +406,7 @@ def _open_set(rows: list[dict[str, Any]]) -> tuple[dict[str, Any], list[str]]:
 
 def _confidence_png(path: Path, hists: dict[str, list[int]], bins: list[float]) -> Path:
     """Side-by-side bar histograms (fraction of runs per confidence bin) as a PNG."""
-    from PIL import Image, ImageDraw  # rerun-sdk's dependency; only needed here
+    from PIL import Image, ImageDraw  # only needed here
 
     W, H, left, bottom, top = 720, 360, 60, 40, 40
     img = Image.new("RGB", (W, H), "white")
