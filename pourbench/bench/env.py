@@ -191,8 +191,9 @@ def run(args: argparse.Namespace) -> int:
     body = "\n".join(
         [
             "`pourbench/Pour-v0` with its defaults: 8 mm particles (about 0.5 g of liquid "
-            "each), physics at 120 Hz with 3 density iterations, 10 Hz control (12 substeps "
-            "per environment step). `env_steps_per_s` = worlds × steps / wall time; "
+            "each), physics at 120 Hz with 3 density iterations (more in a world while some "
+            "particle is over 15 % too dense), 10 Hz control (12 substeps per environment "
+            "step). `env_steps_per_s` = worlds × steps / wall time; "
             "`workers`: processes the vector env's worlds are spread over; `host_share`: "
             "1 − (time in the solver's steps, summed over the processes) / (workers × wall "
             "time); `baseline_env_steps_per_s`: the same worlds stepped as before the batched "
