@@ -119,11 +119,13 @@ class SolverConfig:
             below 1 cm/s after 3 s) at the price of ~0.5 % more compression.
         reorder_every: steps between spatial re-sorts of the particle arrays (0: never).
             Particle order inside a world therefore changes over time.
-        graph: record a step's ~27 launches once as a graph (a CUDA graph, or Warp's CPU
-            capture) and replay it (re-recorded when the scene changes): no Python and no
-            argument packing per launch. The re-sort and the list-capacity check run outside
-            it on their steps. Same kernels and order, so the same results. On a CUDA device
-            without Warp's memory pool the step is launched kernel by kernel.
+        graph: record a step's launches once as graphs (CUDA graphs, or Warp's CPU capture)
+            and replay them (re-recorded when the scene changes): no Python and no argument
+            packing per launch. A step is three: its start (prediction, neighbour lists, the
+            first ``iterations``), one extra iteration (replayed while some world is above
+            ``max_density_error``) and its end. The re-sort and the list-capacity check run
+            outside them on their steps. Same kernels and order, so the same results. On a
+            CUDA device without Warp's memory pool the step is launched kernel by kernel.
         viscosity_rate: κ of the XSPH mapping (dimensionless, per unit FleX viscosity): each
             step of ``calibration_dt`` relaxes a velocity toward its neighbours' kernel mean by
             a = κν / (1 + κν); other steps use 1 − (1 − a)^(dt / calibration_dt), the same
