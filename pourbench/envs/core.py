@@ -65,9 +65,9 @@ _PARK = np.array([0.0, 0.0, -5.0])  # unused pouring containers wait here
 def default_solver_config() -> SolverConfig:
     """The environment's default liquid resolution: 8 mm particles (0.51 g of water each),
     120 Hz physics, 3 density iterations, so that an episode runs in seconds on a CPU. A world
-    iterates further only while some particle is over 15 % too dense: the training cup with
-    300 g settles within that on its 3 iterations, while a filled bottle or pitcher needs more
-    to stand (docs/contact.md).
+    iterates further only while some particle is over 15 % too dense: an ordinary fill of the
+    training cup settles within that on its 3 iterations, while a filled bottle or pitcher
+    needs more to stand (docs/contact.md).
 
     Particles are re-sorted every 6 steps, twice per 10 Hz environment step, so a world's
     re-sorts fall on the same substeps of its episode whether or not its batch held it still

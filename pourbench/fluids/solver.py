@@ -59,7 +59,7 @@ RUNAWAY_ENERGY = 3.0
 """How many times the specific energy a world's scene holds (its liquid's height range under
 gravity, its walls' motion) one particle may carry before :meth:`PBFSolver.diverged` calls it
 a blow-up. Pressure concentrates energy in a few particles: the run-up of a collapsing column
-against a wall carries its tip about twice as high as the column stood."""
+against a wall carries its tip higher than the column stood (docs/contact.md)."""
 
 OVERFLOW_CHECK_EVERY = 16
 """Steps between checks that no neighbour list is full (one small read-back each)."""
@@ -419,8 +419,8 @@ class PBFSolver:
         self._x = np.zeros((0, 3), np.float32)
         self._v = np.zeros((0, 3), np.float32)
         self._world = np.zeros(0, np.int32)
-        # diverged(): per world, the highest its liquid has been (along −gravity) and the
-        # fastest its colliders have moved (m/s), since its particles were added
+        # diverged(): per world, the highest and lowest its liquid has been (along −gravity)
+        # and the fastest its colliders have moved (m/s), since its particles were added
         g = np.asarray(self.config.gravity, float)
         norm = float(np.linalg.norm(g))
         self._up = -g / norm if norm > 0 else np.array([0.0, 0.0, 1.0])
@@ -525,11 +525,11 @@ class PBFSolver:
         if velocities is not None:
             vel = check_array("particle velocities", velocities, pos.shape).astype(np.float32)
         self._mark_dirty()
-        # keep particles grouped by world so each world's slice is contiguous
         if len(pos):
             height = pos @ self._up
             self._top[world] = max(self._top[world], float(height.max()))
             self._bottom[world] = min(self._bottom[world], float(height.min()))
+        # keep particles grouped by world so each world's slice is contiguous
         idx = np.searchsorted(self._world, world, side="right")
         self._x = np.insert(self._x, idx, pos, axis=0)
         self._v = np.insert(self._v, idx, vel.reshape(-1, 3), axis=0)
@@ -919,7 +919,7 @@ class PBFSolver:
         """Per world, the density iterations of the last step: ``iterations`` plus the shares
         of the extra ones ``max_density_error`` called for (a float)."""
         extra = np.zeros(self.num_worlds) if self._dirty else self.extra.numpy()
-        return self.config.iterations + extra.astype(float)
+        return self.config.iterations + extra
 
     def _step_start(self) -> None:
         """Predict, list neighbours, and every world's first ``iterations`` iterations."""
