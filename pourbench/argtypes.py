@@ -9,7 +9,25 @@ import math
 from pathlib import Path
 
 BUILTIN_POLICIES: tuple[str, ...] = ("pd", "random")
-"""Policies ``pourbench eval`` knows by name (the rest are paths of saved models)."""
+"""Policies ``pourbench eval`` knows by name besides the shipped ones (the rest are paths of
+saved models)."""
+
+POLICY_DIR = Path(__file__).parent / "agents" / "policies"
+"""Where shipped policies live: ``<name>.zip`` (the SB3 model) beside ``<name>.json``."""
+
+
+def shipped_policies() -> list[str]:
+    """Names of the shipped policies (a ``.zip`` with its ``.json`` in :data:`POLICY_DIR`)."""
+    if not POLICY_DIR.is_dir():
+        return []
+    return sorted(p.stem for p in POLICY_DIR.glob("*.zip") if p.with_suffix(".json").is_file())
+
+
+def policy_choices() -> str:
+    """The policy names that exist, for messages: built-in, shipped (or that none ships)."""
+    shipped = shipped_policies()
+    names = ", ".join([*BUILTIN_POLICIES, *shipped])
+    return names + ("" if shipped else " (no trained policy ships yet)")
 
 
 def positive_float(text: str) -> float:
@@ -44,9 +62,10 @@ def nonnegative_int(text: str) -> int:
 
 
 def policy_name(text: str) -> str:
-    """A built-in policy ("pd", "random") or the path of an existing saved model."""
-    if text in BUILTIN_POLICIES or Path(text).is_file():
+    """A built-in policy ("pd", "random"), a shipped one, or the path of an existing saved
+    model."""
+    if text in BUILTIN_POLICIES or text in shipped_policies() or Path(text).is_file():
         return text
     raise argparse.ArgumentTypeError(
-        f"{text!r} is neither a policy {list(BUILTIN_POLICIES)} nor a saved model file"
+        f"{text!r} is neither a policy ({policy_choices()}) nor a saved model file"
     )

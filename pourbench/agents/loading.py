@@ -1,0 +1,195 @@
+"""Pouring policies by name or path: :func:`load_policy` returns ``f(obs, new_episode) ->
+action`` for the PD baseline ("pd"), a uniform random policy ("random"), a shipped policy
+(``pourbench/agents/policies/<name>.zip`` beside ``<name>.json``, its metadata), or the path
+of a model saved by ``pourbench train`` (PPO, RecurrentPPO or SAC; the algorithm is read from
+the file).
+
+``obs`` is one Pour-v0 observation (12 values), the action two values in [-1, 1];
+``new_episode`` is True on an episode's first step. A recurrent policy keeps its LSTM state
+from call to call and starts afresh when ``new_episode`` is True. Saved models act
+deterministically.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pourbench.argtypes import BUILTIN_POLICIES, POLICY_DIR, policy_choices, shipped_policies
+from pourbench.errors import InvalidParameterError, UnknownNameError, check_int
+
+Policy = Callable[[np.ndarray, bool], np.ndarray]
+
+
+class UnknownPolicyError(UnknownNameError):
+    """A policy name that is neither built in, shipped, nor an existing file; the message
+    lists the names that exist (and says when no trained policy ships)."""
+
+    def __init__(self, name: str) -> None:
+        super().__init__("policy", name, known_policies())
+        self.args = (
+            f"unknown policy {name!r}; known: {policy_choices()}, or a saved model's .zip path",
+        )
+
+    def __reduce__(self) -> tuple:
+        return (type(self), (self.name,))
+
+
+# a saved model's policy class module -> its algorithm
+_ALGORITHMS = {
+    "stable_baselines3.common.policies": "ppo",
+    "sb3_contrib.common.recurrent.policies": "recurrent_ppo",
+    "stable_baselines3.sac.policies": "sac",
+}
+
+
+def algorithm_of(path: str | Path) -> str:
+    """ "ppo", "recurrent_ppo" or "sac": the algorithm a saved SB3 model file was made by.
+
+    Raises:
+        InvalidParameterError: missing file, not a zip, or not one of those three.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InvalidParameterError(
+            f"no policy file at {str(p)!r}; policies: {policy_choices()}, or a model.zip"
+        )
+    if not zipfile.is_zipfile(p):
+        raise InvalidParameterError(
+            f"{str(p)!r} is not a saved Stable-Baselines3 model (not a zip file)"
+        )
+    try:
+        with zipfile.ZipFile(p) as z:
+            module = json.loads(z.read("data"))["policy_class"]["__module__"]
+    except Exception as exc:
+        raise InvalidParameterError(
+            f"{str(p)!r} is not a saved Stable-Baselines3 model ({type(exc).__name__}: {exc})"
+        ) from None
+    if module not in _ALGORITHMS:
+        raise InvalidParameterError(
+            f"{str(p)!r} holds a {module} policy; PPO, RecurrentPPO or SAC models are read"
+        )
+    return _ALGORITHMS[module]
+
+
+def load_model(path: str | Path, env: Any = None, device: str = "cpu") -> Any:
+    """The SB3 model saved at ``path`` (PPO, RecurrentPPO or SAC), on ``env`` if given.
+
+    Raises:
+        InvalidParameterError: the file is not such a model, or its spaces are not Pour-v0's
+            (12 observations, 2 actions).
+    """
+    algorithm = algorithm_of(path)
+    cls = model_class(algorithm)
+    try:
+        model = cls.load(path, env=env, device=device)
+    except Exception as exc:  # any unreadable file is the same bad input
+        raise InvalidParameterError(
+            f"{str(path)!r} is not a readable {cls.__name__} model ({type(exc).__name__}: {exc})"
+        ) from None
+    obs_shape = tuple(model.observation_space.shape or ())
+    act_shape = tuple(model.action_space.shape or ())
+    if obs_shape != (12,) or act_shape != (2,):
+        raise InvalidParameterError(
+            f"{str(path)!r} was trained on observations {obs_shape} and actions {act_shape}; "
+            "Pour-v0 has (12,) and (2,)"
+        )
+    return model
+
+
+def model_class(algorithm: str) -> type:
+    """The SB3 class of "ppo", "recurrent_ppo" or "sac"."""
+    if algorithm == "recurrent_ppo":
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
+    from stable_baselines3 import PPO, SAC
+
+    return {"ppo": PPO, "sac": SAC}[algorithm]
+
+
+def model_policy(model: Any) -> Policy:
+    """An SB3 model in memory as ``f(obs, new_episode)`` acting deterministically; a
+    recurrent model's state is kept between calls and cleared when ``new_episode``."""
+    from sb3_contrib import RecurrentPPO
+
+    if not isinstance(model, RecurrentPPO):
+        return lambda obs, new: model.predict(obs, deterministic=True)[0]
+    state: list[Any] = [None]
+
+    def act(obs: np.ndarray, new: bool) -> np.ndarray:
+        action, state[0] = model.predict(
+            obs, state=None if new else state[0], episode_start=np.array([new]), deterministic=True
+        )
+        return action
+
+    return act
+
+
+def load_sb3_policy(path: str | Path) -> Policy:
+    """A saved model (``.zip``) as a policy (see :func:`load_model` for what is refused)."""
+    return model_policy(load_model(path))
+
+
+def known_policies() -> list[str]:
+    """Names :func:`load_policy` takes: the built-in ones, then the shipped ones."""
+    return [*BUILTIN_POLICIES, *shipped_policies()]
+
+
+def policy_metadata(name: str) -> dict[str, Any]:
+    """A shipped policy's metadata (command, steps, seed, wall time, git SHA, machine).
+
+    Raises:
+        UnknownPolicyError: no such shipped policy (the message lists those that exist).
+    """
+    if name not in shipped_policies():
+        raise UnknownPolicyError(name)
+    return json.loads((POLICY_DIR / f"{name}.json").read_text())
+
+
+def load_policy(name_or_path: str | os.PathLike[str], seed: int = 0) -> Policy:
+    """A pouring policy ``f(obs, new_episode) -> action`` (see the module docstring).
+
+    Args:
+        name_or_path: "pd", "random", a shipped policy's name, or a saved model's path.
+        seed: seed of "random" (an integer >= 0).
+
+    Raises:
+        InvalidParameterError: not a string or path, a bad seed, or a file that is not a
+            Pour-v0 model.
+        UnknownPolicyError: a name that is neither built in, shipped, nor an existing file
+            (an :class:`~pourbench.errors.UnknownNameError`); the message lists the names
+            that exist.
+    """
+    name = os.fspath(name_or_path) if isinstance(name_or_path, os.PathLike) else name_or_path
+    if not isinstance(name, str):
+        raise InvalidParameterError(
+            f"policy must be one of {known_policies()}, a saved model's path or a callable "
+            f"f(obs, new_episode), got {name_or_path!r}"
+        )
+    seed = check_int("seed", seed, minimum=0)
+    if name == "pd":
+        from pourbench.agents.pd import PDConfig, PDPourer
+
+        pd = PDPourer(1, PDConfig())
+
+        def act(obs: np.ndarray, new: bool) -> np.ndarray:
+            if new:
+                pd.reset()
+            return pd.act(obs)
+
+        return act
+    if name == "random":
+        rng = np.random.default_rng(seed)
+        return lambda obs, new: rng.uniform(-1.0, 1.0, 2).astype(np.float32)
+    if name in shipped_policies():
+        return load_sb3_policy(POLICY_DIR / f"{name}.zip")
+    if name.endswith(".zip") or Path(name).is_file():
+        return load_sb3_policy(name)
+    raise UnknownPolicyError(name)
