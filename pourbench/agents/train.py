@@ -1,13 +1,26 @@
-"""Train PPO (SB3, MLP policy) on ``pourbench/Pour-v0`` for a wall-clock budget, then compare
-it with a random policy on the same evaluation episodes.
+"""Train a PourNet policy on ``pourbench/Pour-v0`` (thesis §6.5–6.6): PPO with an MLP (FNN),
+RecurrentPPO with an LSTM, or SAC on one liquid; with the curiosity module and the liquid
+curriculum on by default; then compare it with a random policy on the same episodes.
 
-``pourbench train --budget-s 900 --liquid water --target-g 100`` (or
-``python -m pourbench.agents.train …``, the same flags)
+``pourbench train --budget-steps 200000`` (or ``--budget-s 900``; ``python -m
+pourbench.agents.train`` takes the same flags). One :class:`TrainArgs` holds every setting,
+checked before any work.
 
-The model is saved to ``<out>/model.zip`` every ``--checkpoint-s`` seconds and at the end
-(through a temporary file, so an interrupted run keeps its last checkpoint); ``--resume``
-continues from it, step counter included. A run into a folder that already holds a model
-without ``--resume`` is refused rather than overwriting it.
+The run's folder (``--out``) holds:
+
+* ``model.zip``: the model, saved every ``--checkpoint-s`` seconds and at the end (through
+  a temporary file: an interrupted run keeps its last checkpoint), with ``icm.pt`` (the
+  curiosity module's weights and optimiser) and ``state.json`` (settings, steps, seconds
+  trained, sessions) beside it;
+* ``logs/<session>/``: SB3's ``progress.csv`` and TensorBoard events
+  (``tensorboard --logdir <out>/logs``), one folder per session;
+* ``training.png``: the training curves (:mod:`pourbench.agents.plots`);
+* ``result.json``: the final evaluation against a random policy.
+
+``--resume`` continues the latest checkpoint: model, ICM and step count; the budget is the
+run's total (steps, or seconds over all sessions), so a resumed run trains until it is spent
+and a finished one is resumed with a larger budget. A run into a folder that already holds a
+model without ``--resume`` is refused rather than overwriting it.
 """
 
 from __future__ import annotations
@@ -17,12 +30,16 @@ import json
 import os
 import sys
 import time
+import typing
 from dataclasses import asdict, dataclass
 from pathlib import Path
-
-import numpy as np
+from typing import Any
 
 from pourbench.errors import InvalidParameterError, check_int, check_positive
+
+ALGORITHMS = ("ppo", "recurrent_ppo", "sac")
+POLICIES = ("mlp", "lstm")
+_SAME_ON_RESUME = ("algorithm", "policy", "icm", "curriculum", "num_envs", "n_steps")
 
 
 @dataclass
@@ -30,158 +47,319 @@ class TrainArgs:
     """Training settings.
 
     Attributes:
-        budget_s: wall-clock training budget, s.
-        num_envs: parallel worlds in the one vector env.
-        liquid: liquid of every episode.
-        target_g: target of every episode, g.
-        n_steps: PPO rollout length per world.
-        seed: seed of PPO and of the worlds (evaluation uses seeds 1000…).
-        eval_episodes: evaluation episodes per policy.
+        algorithm: ppo (with policy mlp: the FNN PourNet), recurrent_ppo (with policy lstm:
+            the LSTM PourNet) or sac (mlp, one liquid, no ICM or curriculum).
+        policy: mlp or lstm (see pourbench.agents.models for the architectures).
+        icm: add the curiosity module's intrinsic reward (PPO and RecurrentPPO).
+        curriculum: draw liquids from the curriculum's lessons, switched at 25 % and 50 % of
+            the budget (off: every episode pours liquid).
+        num_envs: parallel worlds in the one vector env (the thesis' 32).
+        workers: processes the worlds are spread over (0: one per core, at most one per
+            world).
+        budget_steps: training budget in environment steps over all worlds and sessions.
+        budget_s: training budget in wall-clock seconds over all sessions (when neither is
+            given: 900 s; give one, not both).
+        liquid: the liquid without curriculum, and of the evaluations.
+        target_g: target of every episode, g (0: drawn per episode from 50 to 200 g).
+        n_steps: rollout length per world (PPO, RecurrentPPO).
+        seq_len: LSTM sequence length; sb3-contrib bounds a sequence by n_steps, so a
+            recurrent run needs seq_len == n_steps.
+        batch_size: minibatch size, samples.
+        icm_eta: scale of the intrinsic reward, eta.
+        seed: seed of the model and of the worlds (a resumed run's k-th session seeds them
+            with seed + 1000·k; evaluation uses seeds 1000…).
+        eval_episodes: episodes of each evaluation.
+        eval_every_steps: environment steps between evaluations during training (0: only
+            at the end).
         threads: torch threads.
-        out: folder for the model and the result JSON.
-        checkpoint_s: seconds between checkpoints of the model.
-        resume: continue from ``<out>/model.zip``.
+        out: folder of the run (model, logs, plot, result).
+        checkpoint_s: seconds between checkpoints.
+        resume: continue the run in out from its latest checkpoint.
     """
 
-    budget_s: float = 900.0
-    num_envs: int = 4
+    algorithm: str = "ppo"
+    policy: str = "mlp"
+    icm: bool = True
+    curriculum: bool = True
+    num_envs: int = 32
+    workers: int = 0
+    budget_steps: int | None = None
+    budget_s: float | None = None
     liquid: str = "water"
-    target_g: float = 100.0
+    target_g: float = 0.0
     n_steps: int = 64
+    seq_len: int = 64
+    batch_size: int = 256
+    icm_eta: float = 0.02
     seed: int = 0
     eval_episodes: int = 10
+    eval_every_steps: int = 100_000
     threads: int = 1
-    out: str = "runs/ppo_pour"
+    out: str = "runs/pournet"
     checkpoint_s: float = 60.0
     resume: bool = False
 
     def __post_init__(self) -> None:
         """Every setting checked at construction, before any training: a run that trains is
         not lost to a bad setting its evaluation would meet only at the end."""
-        for name in ("budget_s", "target_g", "checkpoint_s"):
-            check_positive(name, getattr(self, name))
-        for name in ("num_envs", "n_steps", "eval_episodes", "threads"):
-            check_int(name, getattr(self, name), minimum=1)
-        check_int("seed", self.seed, minimum=0)
-        # PPO's minibatch is min(64, n_steps * num_envs) samples and SB3 needs more than one
-        if self.n_steps * self.num_envs < 2:
+        if self.algorithm not in ALGORITHMS:
             raise InvalidParameterError(
-                "n_steps * num_envs (the PPO rollout, and its minibatch size up to 64) must be "
-                f">= 2, got n_steps={self.n_steps!r} and num_envs={self.num_envs!r}"
+                f"algorithm must be one of {list(ALGORITHMS)}, got {self.algorithm!r}"
+            )
+        if self.policy not in POLICIES:
+            raise InvalidParameterError(
+                f"policy must be one of {list(POLICIES)}, got {self.policy!r}"
+            )
+        if (self.policy == "lstm") != (self.algorithm == "recurrent_ppo"):
+            raise InvalidParameterError(
+                f"policy {self.policy!r} does not go with algorithm {self.algorithm!r}: lstm "
+                "is trained by recurrent_ppo, mlp by ppo or sac"
+            )
+        for name in ("icm", "curriculum", "resume"):
+            if not isinstance(getattr(self, name), bool):
+                raise InvalidParameterError(
+                    f"{name} must be True or False, got {getattr(self, name)!r}"
+                )
+        if self.algorithm == "sac" and (self.icm or self.curriculum):
+            raise InvalidParameterError(
+                "algorithm 'sac' trains on one liquid without ICM: give --no-icm and "
+                f"--no-curriculum (icm={self.icm!r}, curriculum={self.curriculum!r})"
+            )
+        if self.budget_steps is not None and self.budget_s is not None:
+            raise InvalidParameterError(
+                f"give one budget, steps or seconds, not both (budget_steps="
+                f"{self.budget_steps!r}, budget_s={self.budget_s!r})"
+            )
+        if self.budget_steps is not None:
+            check_int("budget_steps", self.budget_steps, minimum=1)
+        elif self.budget_s is None:
+            self.budget_s = 900.0
+        if self.budget_s is not None:
+            check_positive("budget_s", self.budget_s)
+        for name in ("checkpoint_s", "icm_eta"):
+            check_positive(name, getattr(self, name))
+        for name in ("num_envs", "n_steps", "seq_len", "batch_size", "eval_episodes", "threads"):
+            check_int(name, getattr(self, name), minimum=1)
+        for name in ("seed", "workers", "eval_every_steps"):
+            check_int(name, getattr(self, name), minimum=0)
+        if self.workers > self.num_envs:
+            raise InvalidParameterError(
+                f"workers={self.workers!r} is more than num_envs={self.num_envs!r}"
+            )
+        if isinstance(self.target_g, bool) or not isinstance(self.target_g, int | float):
+            raise InvalidParameterError(f"target_g must be a number, got {self.target_g!r}")
+        if self.target_g != 0:
+            check_positive("target_g", self.target_g)
+        # PPO's minibatch is min(batch_size, n_steps * num_envs) samples; SB3 needs two
+        if self.algorithm != "sac" and self.n_steps * self.num_envs < 2:
+            raise InvalidParameterError(
+                "n_steps * num_envs (the PPO rollout, and its minibatch size up to batch_size) "
+                f"must be >= 2, got n_steps={self.n_steps!r} and num_envs={self.num_envs!r}"
+            )
+        if self.algorithm == "recurrent_ppo" and self.seq_len != self.n_steps:
+            longer = self.seq_len > self.n_steps
+            raise InvalidParameterError(
+                f"seq_len={self.seq_len!r} is "
+                + (
+                    f"longer than the rollout, n_steps={self.n_steps!r}"
+                    if longer
+                    else f"shorter than the rollout, n_steps={self.n_steps!r}, which "
+                    "sb3-contrib cannot cut"
+                )
+                + "; set n_steps to the LSTM sequence length"
             )
         if not isinstance(self.liquid, str) or not self.liquid:
             raise InvalidParameterError(f"liquid must be a liquid name, got {self.liquid!r}")
-        if not isinstance(self.resume, bool):
-            raise InvalidParameterError(f"resume must be True or False, got {self.resume!r}")
         if not isinstance(self.out, str | os.PathLike) or not os.fspath(self.out):
             raise InvalidParameterError(f"out must be a non-empty folder path, got {self.out!r}")
         self.out = os.fspath(self.out)  # a str, as result.json records it
 
 
-def _save(model, path: Path) -> None:
+def _save(model: Any, path: Path) -> None:
     """``model`` to ``path`` (``.zip``) through a temporary file."""
     partial = path.with_name(path.stem + ".partial.zip")
     model.save(partial)
     os.replace(partial, path)
 
 
+def _read_state(out: Path, args: TrainArgs) -> dict[str, Any]:
+    """The run's ``state.json`` for a resume, checked against ``args``."""
+    from pourbench.outputs import OutputPathError
+
+    model_path, state_path = out / "model.zip", out / "state.json"
+    if not model_path.exists():
+        raise OutputPathError(f"--resume: no model to resume from at {str(model_path)!r}")
+    try:
+        state = json.loads(state_path.read_text())
+        saved = state["args"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise InvalidParameterError(
+            f"--resume: {str(state_path)!r} is missing or unreadable ({type(exc).__name__}: "
+            f"{exc}); it is written with every checkpoint"
+        ) from None
+    for name in _SAME_ON_RESUME:
+        if saved.get(name) != getattr(args, name):
+            raise InvalidParameterError(
+                f"--resume: the run in {str(out)!r} has {name}={saved.get(name)!r}, not "
+                f"{getattr(args, name)!r}"
+            )
+    return state
+
+
 def train(args: TrainArgs) -> dict:
-    """Train for ``args.budget_s`` seconds and evaluate PPO and a random policy."""
+    """Train until the budget is spent, write the plot, evaluate against a random policy;
+    the result (also written to ``<out>/result.json``)."""
     from pourbench.envs.core import _known_liquid
     from pourbench.outputs import OutputPathError, check_output_folder, write_text_atomic
 
     _known_liquid(args.liquid)  # before any work: a typo fails in a second
     out = check_output_folder(args.out)
-    model_path = out / "model.zip"
-    if args.resume and not model_path.exists():
-        raise OutputPathError(f"--resume: no model to resume from at {str(model_path)!r}")
-    if not args.resume and model_path.exists():
+    model_path, icm_path = out / "model.zip", out / "icm.pt"
+    state = {"timesteps": 0, "train_s": 0.0, "sessions": 0}
+    if args.resume:
+        state = _read_state(out, args)
+    elif model_path.exists():
         raise OutputPathError(
             f"{str(model_path)!r} exists; pass --resume to continue it or another --out"
         )
+    left_s = None if args.budget_s is None else args.budget_s - state["train_s"]
+    left_steps = None if args.budget_steps is None else args.budget_steps - state["timesteps"]
+    if (left_s is not None and left_s <= 0) or (left_steps is not None and left_steps <= 0):
+        raise InvalidParameterError(
+            f"--resume: the run in {str(out)!r} has spent its budget ({state['timesteps']} "
+            f"steps, {state['train_s']:.0f} s); give a larger --budget-steps or --budget-s"
+        )
 
     import torch
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecMonitor
 
+    from pourbench.agents.callbacks import BudgetCallback, EvalCallback, PourStatsCallback
     from pourbench.agents.evaluate import evaluate
+    from pourbench.agents.icm import ICMConfig, ICMVecEnv
+    from pourbench.agents.loading import load_model, model_policy
+    from pourbench.agents.models import make_model
+    from pourbench.agents.plots import plot_training
     from pourbench.agents.sb3 import SB3PourVecEnv
+    from pourbench.agents.schedule import CurriculumCallback
+    from pourbench.envs.curriculum import lesson_at, load_curriculum
 
     torch.set_num_threads(args.threads)
-    target = (args.target_g, args.target_g)
-    venv = SB3PourVecEnv(args.num_envs, seed=args.seed, liquid=args.liquid, target_range_g=target)
+    env_kw: dict[str, Any] = {"liquid": None if args.curriculum else args.liquid}
+    if args.curriculum:  # a resumed run's first episodes are already in its lesson
+        if args.budget_steps is not None:
+            done = state["timesteps"] / args.budget_steps
+        else:
+            done = state["train_s"] / float(args.budget_s)  # type: ignore[arg-type]
+        env_kw["lesson"] = lesson_at(done, load_curriculum())
+    if args.target_g:
+        env_kw["target_range_g"] = (args.target_g, args.target_g)
+    base = SB3PourVecEnv(
+        args.num_envs, seed=args.seed + 1000 * state["sessions"], workers=args.workers or None,
+        **env_kw,
+    )  # fmt: skip
+    venv: Any = VecMonitor(base)
+    icm = None
+    if args.icm:
+        icm = venv = ICMVecEnv(venv, ICMConfig(eta=args.icm_eta, update_every=args.n_steps))
+    try:
+        if args.resume:
+            model = load_model(model_path, env=venv)
+            if icm is not None:
+                icm.load(icm_path)
+            print(f"resuming {model_path} at {model.num_timesteps} timesteps")
+        else:
+            model = make_model(
+                args.algorithm, venv, n_steps=args.n_steps, batch_size=args.batch_size,
+                seed=args.seed,
+            )  # fmt: skip
+        log_dir = out / "logs" / str(state["sessions"])
+        model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
+        t_start = time.perf_counter()
 
-    class BudgetAndCheckpoints(BaseCallback):
-        def __init__(self) -> None:
-            super().__init__()
-            self.t0 = self.saved = time.perf_counter()
+        def spent_s() -> float:
+            return state["train_s"] + time.perf_counter() - t_start
 
-        def _on_step(self) -> bool:
-            now = time.perf_counter()
-            if now - self.saved >= args.checkpoint_s:
-                _save(self.model, model_path)
-                self.saved = now
-            return now - self.t0 < args.budget_s
+        def checkpoint() -> None:
+            _save(model, model_path)
+            if icm is not None:
+                icm.save(icm_path)
+            now = {
+                "args": asdict(args),
+                "timesteps": int(model.num_timesteps),
+                "train_s": spent_s(),
+                "sessions": state["sessions"] + 1,
+            }
+            write_text_atomic(out / "state.json", json.dumps(now, indent=2) + "\n")
 
-    if args.resume:
-        try:
-            model = PPO.load(model_path, env=venv, device="cpu")
-        except Exception as exc:  # a corrupt or foreign file: name it, say what is wrong
-            venv.close()
-            raise InvalidParameterError(
-                f"--resume: {str(model_path)!r} is not a readable PPO model "
-                f"({type(exc).__name__}: {exc})"
-            ) from exc
-        print(f"resuming {model_path} at {model.num_timesteps} timesteps")
-    else:
-        model = PPO(
-            "MlpPolicy",
-            venv,
-            n_steps=args.n_steps,
-            batch_size=min(64, args.n_steps * args.num_envs),
-            n_epochs=10,
-            gamma=0.995,
-            seed=args.seed,
-            device="cpu",
-            verbose=1,
+        def progress(steps: int) -> float:
+            if args.budget_steps is not None:
+                return steps / args.budget_steps
+            return spent_s() / float(args.budget_s)  # type: ignore[arg-type]
+
+        eval_kw = {"liquid": args.liquid, "target_g": args.target_g or None, "seed": 1000}
+
+        def evaluate_now() -> Any:
+            return evaluate(model_policy(model), args.eval_episodes, progress=True, **eval_kw)
+
+        callbacks: list[Any] = [
+            PourStatsCallback(icm),
+            BudgetCallback(left_s, args.checkpoint_s, checkpoint),
+        ]
+        if args.curriculum:
+            callbacks.append(CurriculumCallback(progress, verbose=1))
+        if args.eval_every_steps:
+            callbacks.append(EvalCallback(args.eval_every_steps, evaluate_now))
+        model.learn(
+            total_timesteps=left_steps if left_steps is not None else 10**12,
+            callback=callbacks,
+            reset_num_timesteps=not args.resume,
+            progress_bar=left_steps is not None,
         )
-    t0 = time.perf_counter()
-    model.learn(
-        total_timesteps=10**9,
-        callback=BudgetAndCheckpoints(),
-        reset_num_timesteps=not args.resume,
-    )
-    train_s = time.perf_counter() - t0
-    _save(model, model_path)
-
-    def ppo_policy(obs: np.ndarray, new: bool) -> np.ndarray:
-        return model.predict(obs, deterministic=True)[0]
-
-    kw = {"liquid": args.liquid}
-    ppo = evaluate(ppo_policy, args.eval_episodes, args.target_g, seed=1000, **kw)
-    rnd = evaluate("random", args.eval_episodes, args.target_g, seed=1000, **kw)
+        checkpoint()
+    finally:
+        venv.close()
+    train_s = time.perf_counter() - t_start
+    plot = plot_training(out)
+    print(f"wrote {plot}")
+    final = evaluate_now()
+    rnd = evaluate("random", args.eval_episodes, progress=True, **eval_kw)
     result = {
         "args": asdict(args),
         "train_s": train_s,
+        "total_train_s": state["train_s"] + train_s,
         "timesteps": int(model.num_timesteps),
-        "ppo_mean_abs_error_g": ppo.mean_abs_error_g,
+        "mean_abs_error_g": final.mean_abs_error_g,
         "random_mean_abs_error_g": rnd.mean_abs_error_g,
-        "ppo": ppo.summary(),
+        "policy": final.summary(),
         "random": rnd.summary(),
+        "plot": str(plot),
     }
     write_text_atomic(out / "result.json", json.dumps(result, indent=2) + "\n")
     return result
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """One ``--flag`` per :class:`TrainArgs` field (``pourbench train`` and ``main`` share it)."""
+    """One ``--flag`` per :class:`TrainArgs` field (``pourbench train`` and ``main`` share
+    it); ``--no-icm`` and ``--no-curriculum`` turn those off."""
     helps = _field_help()
+    hints = typing.get_type_hints(TrainArgs)
     for name, value in asdict(TrainArgs()).items():
         flag = f"--{name.replace('_', '-')}"
-        if isinstance(value, bool):
+        if name in ("icm", "curriculum"):
+            parser.add_argument(
+                f"--no-{name}", dest=name, action="store_false", help=f"off: {helps[name]}"
+            )
+            parser.set_defaults(**{name: True})
+        elif isinstance(value, bool):
             parser.add_argument(flag, action="store_true", help=helps[name])
         else:
-            parser.add_argument(flag, type=type(value), default=value, help=helps[name])
+            kinds = typing.get_args(hints[name]) or (hints[name],)
+            kind = next(t for t in kinds if t is not type(None))
+            if name == "budget_s":
+                value = None  # the 900 s default applies when no step budget is given either
+            # no argparse choices: TrainArgs refuses a bad name in one line naming it
+            parser.add_argument(flag, type=kind, default=value, help=helps[name])
 
 
 def _field_help() -> dict[str, str]:
@@ -195,7 +373,7 @@ def _field_help() -> dict[str, str]:
         elif helps and line.strip():  # a wrapped description goes on
             last = next(reversed(helps))
             helps[last] += " " + line.strip()
-    return {k: v.rstrip(".") for k, v in helps.items()}
+    return {k: v.rstrip(".").replace("%", "%%") for k, v in helps.items()}
 
 
 def run(args: argparse.Namespace) -> int:

@@ -38,9 +38,11 @@ class Lesson:
     def sample(
         self, rng: np.random.Generator, base: str | LiquidProfile = "water"
     ) -> LiquidProfile:
-        """A liquid with every randomised parameter drawn uniformly from its range."""
+        """A liquid with every randomised parameter drawn uniformly from its range, named
+        ``"lesson <lesson name>"`` (what an episode's ``info["liquid"]`` then says) rather
+        than after ``base``, whose other attributes it keeps."""
         values = {k: float(rng.uniform(*self.ranges[k])) for k in RANDOMISED}
-        return liquid_profile(base).replace(**values)
+        return liquid_profile(base).replace(name=f"lesson {self.name}", **values)
 
 
 def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:

@@ -1,0 +1,102 @@
+"""The thesis' PourNet architectures (§6.5.8) as Stable-Baselines3 / sb3-contrib models.
+
+* **FNN**: PPO with an MLP policy and value network of 3 × 256 (tanh, SB3's default).
+* **LSTM**: RecurrentPPO with an LSTM of 256 units (the thesis' "memory size 256") followed by
+  3 × 256 layers for the policy and the value (the thesis' "3 layers × 256 hidden units" are
+  ML-Agents' dense layers around one recurrent memory; sb3-contrib puts the LSTM first, then
+  ``net_arch``). The actor and the critic each have their own LSTM (sb3-contrib's default).
+* **SAC** (the thesis' comparison on one liquid, §6.5.2): actor and twin critics of 3 × 256.
+
+Sequence length: sb3-contrib has no such setting. It backpropagates through each world's
+part of a rollout, ``n_steps`` steps, cut at episode starts and at minibatch edges, so a
+sequence is at most ``n_steps`` long; ``n_steps = seq_len = 64`` gives the thesis' 64. The
+training config refuses a recurrent run whose ``seq_len`` differs from ``n_steps``.
+
+Discount 0.995 (as before in this project; Algorithm 5's reward is sparse and an episode is
+up to 250 steps); the other hyper-parameters are SB3's defaults.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pourbench.errors import InvalidParameterError
+
+HIDDEN = (256, 256, 256)
+"""Hidden layers of every PourNet network (thesis §6.5.8)."""
+LSTM_UNITS = 256
+"""LSTM memory of the recurrent PourNet (thesis §6.5.8.1)."""
+GAMMA = 0.995
+
+
+def make_model(
+    algorithm: str,
+    env: Any,
+    *,
+    n_steps: int = 64,
+    batch_size: int = 256,
+    seed: int = 0,
+    tensorboard_log: str | None = None,
+    verbose: int = 1,
+) -> Any:
+    """A new model of ``algorithm`` ("ppo": FNN, "recurrent_ppo": LSTM, "sac") on ``env``.
+
+    Args:
+        algorithm: "ppo", "recurrent_ppo" or "sac".
+        env: the SB3 VecEnv it trains on.
+        n_steps: PPO / RecurrentPPO rollout length per world (also the LSTM sequence bound).
+        batch_size: minibatch size in samples (at most the rollout, ``n_steps × num_envs``,
+            for PPO; SAC's batch from its replay buffer).
+        seed: seed of the networks and the sampling.
+        tensorboard_log: TensorBoard folder (None: none, or the logger set later).
+        verbose: SB3's verbosity.
+
+    Raises:
+        InvalidParameterError: an unknown algorithm.
+    """
+    from stable_baselines3 import PPO, SAC
+
+    common: dict[str, Any] = {
+        "seed": seed,
+        "device": "cpu",
+        "verbose": verbose,
+        "tensorboard_log": tensorboard_log,
+        "gamma": GAMMA,
+    }
+    rollout = n_steps * env.num_envs
+    if algorithm == "ppo":
+        return PPO(
+            "MlpPolicy",
+            env,
+            n_steps=n_steps,
+            batch_size=min(batch_size, rollout),
+            policy_kwargs={"net_arch": {"pi": list(HIDDEN), "vf": list(HIDDEN)}},
+            **common,
+        )
+    if algorithm == "recurrent_ppo":
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO(
+            "MlpLstmPolicy",
+            env,
+            n_steps=n_steps,
+            batch_size=min(batch_size, rollout),
+            policy_kwargs={
+                "lstm_hidden_size": LSTM_UNITS,
+                "n_lstm_layers": 1,
+                "net_arch": {"pi": list(HIDDEN), "vf": list(HIDDEN)},
+            },
+            **common,
+        )
+    if algorithm == "sac":
+        return SAC(
+            "MlpPolicy",
+            env,
+            batch_size=batch_size,
+            buffer_size=200_000,
+            policy_kwargs={"net_arch": list(HIDDEN)},
+            **common,
+        )
+    raise InvalidParameterError(
+        f"algorithm must be one of ['ppo', 'recurrent_ppo', 'sac'], got {algorithm!r}"
+    )
