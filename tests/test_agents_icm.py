@@ -3,48 +3,15 @@ before returns and advantages are computed, and episode ends use the terminal ob
 
 from __future__ import annotations
 
-import gymnasium as gym
 import numpy as np
 import pytest
 import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv
+from toy_envs import Toy
 
 from pourbench.agents.icm import ICMConfig, ICMTrainer, ICMVecEnv
-
-
-class Toy(gym.Env):
-    """A deterministic 3-value state moved by a 1-value action; terminates after ``length``
-    steps with reward 1 (and -0.1 a step before). Records every transition it makes."""
-
-    observation_space = gym.spaces.Box(-10.0, 10.0, (3,), np.float32)
-    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
-
-    def __init__(self, length: int = 5, offset: float = 0.0) -> None:
-        self.length, self.offset = length, offset
-        self.log: list[tuple[np.ndarray, np.ndarray, np.ndarray, float, bool]] = []
-
-    def _obs(self) -> np.ndarray:
-        return np.array([self.t / self.length, self.x, self.offset], np.float32)
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        self.t, self.x = 0, 0.0
-        return self._obs(), {}
-
-    def step(self, action):
-        before = self._obs()
-        a = np.clip(np.asarray(action, np.float32), -1.0, 1.0)
-        self.t += 1
-        self.x = float(np.clip(self.x + 0.5 * a[0], -10, 10))
-        done = self.t >= self.length
-        reward = 1.0 if done else -0.1
-        self.log.append((before, a.copy(), self._obs(), reward, done))
-        return self._obs(), reward, done, False, {}
-
-    def set_lesson(self, k: int) -> None:
-        self.lesson = k
 
 
 def test_icm_losses_fall_on_a_fixed_set_of_transitions() -> None:
@@ -165,3 +132,29 @@ def test_icm_trains_every_rollout_and_reports_its_stats(tmp_path) -> None:
 def test_bad_icm_settings_are_refused(kw, words) -> None:
     with pytest.raises(ValueError, match=words):
         ICMConfig(**kw)
+
+
+def test_recurrent_ppo_trains_on_the_rewards_with_the_bonus() -> None:
+    """RecurrentPPO (sb3-contrib) through the same wrapper: its rollout buffer's rewards are
+    the extrinsic ones plus each transition's intrinsic reward."""
+    from sb3_contrib import RecurrentPPO
+
+    envs = [Toy(5, 0.0), Toy(3, 1.0)]
+    venv = ICMVecEnv(DummyVecEnv([lambda e=e: e for e in envs]), ICMConfig(eta=5.0, update_every=8))
+    model = RecurrentPPO("MlpLstmPolicy", venv, n_steps=8, batch_size=16, n_epochs=1, seed=0,
+                         device="cpu", policy_kwargs={"lstm_hidden_size": 16})  # fmt: skip
+    bonuses: list[list[float]] = []
+
+    class Grab(BaseCallback):
+        def _on_step(self) -> bool:
+            bonuses.append([i["intrinsic_reward"] for i in self.locals["infos"]])
+            return True
+
+        def _on_rollout_end(self) -> None:
+            self.rewards = self.model.rollout_buffer.rewards.copy()
+
+    grab = Grab()
+    model.learn(32, callback=grab)  # two rollouts: the second after an ICM update
+    extrinsic = np.array([[e.log[8 + t][3] for e in envs] for t in range(8)])
+    np.testing.assert_allclose(grab.rewards, extrinsic + np.array(bonuses[8:]), rtol=1e-5)
+    assert set(venv.stats) == {"inverse_loss", "forward_loss", "intrinsic_reward"}

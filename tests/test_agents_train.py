@@ -1,5 +1,5 @@
-"""The PPO training script: refuses bad input before any work, never overwrites a model,
-checkpoints and resumes (step counter carried on)."""
+"""The training command: refuses bad input before any work, naming the value; never
+overwrites a model; trains, checkpoints, resumes (step counter and ICM carried on) and plots."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import pytest
 from pourbench.agents.train import main
 
 TINY = ["--budget-s", "2", "--num-envs", "1", "--n-steps", "16", "--eval-episodes", "1"]
+SMALL = ["--num-envs", "2", "--workers", "1", "--n-steps", "32", "--batch-size", "64"]
 
 
 @pytest.mark.parametrize(
@@ -25,6 +26,26 @@ TINY = ["--budget-s", "2", "--num-envs", "1", "--n-steps", "16", "--eval-episode
         (["--n-steps", "1", "--num-envs", "1"], "n_steps * num_envs"),
         (["--threads", "0"], "threads must be >= 1"),
         (["--resume"], "no model to resume"),
+        (
+            ["--algorithm", "a2c"],
+            "algorithm must be one of ['ppo', 'recurrent_ppo', 'sac'], got 'a2c'",
+        ),
+        (["--policy", "cnn"], "policy must be one of ['mlp', 'lstm'], got 'cnn'"),
+        (["--budget-steps", "-5"], "budget_steps must be >= 1, got -5"),
+        (["--budget-s", "-2"], "budget_s must be > 0, got -2.0"),
+        (["--budget-steps", "10", "--budget-s", "5"], "give one budget"),
+        (
+            ["--algorithm", "recurrent_ppo", "--policy", "lstm", "--seq-len", "128"],
+            "seq_len=128 is longer than the rollout, n_steps=64",
+        ),
+        (
+            ["--algorithm", "recurrent_ppo", "--policy", "lstm", "--n-steps", "128"],
+            "seq_len=64 is shorter than the rollout, n_steps=128",
+        ),
+        (["--policy", "lstm"], "policy 'lstm' does not go with algorithm 'ppo'"),
+        (["--algorithm", "sac"], "algorithm 'sac' trains on one liquid without ICM"),
+        (["--workers", "3", "--num-envs", "2"], "workers=3 is more than num_envs=2"),
+        (["--target-g", "-5"], "target_g must be > 0, got -5.0"),
     ],
 )
 def test_bad_input_is_one_clear_line(tmp_path, capsys, argv, words) -> None:
@@ -59,22 +80,62 @@ def test_an_output_path_that_is_a_file_is_refused(tmp_path, capsys) -> None:
 
 
 @pytest.mark.slow
-def test_training_resumes_and_never_overwrites(tmp_path, capsys) -> None:
+def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> None:
+    """PPO + ICM + curriculum for 256 steps, then resumed to 512: the step count, the ICM
+    and the lesson carry on, each session logs what TensorBoard shows, the plot is written."""
+    import csv
+
+    import torch
+
     out = tmp_path / "run"
-    assert main([*TINY, "--out", str(out)]) == 0
-    first = json.loads((out / "result.json").read_text())["timesteps"]
+    run = [*SMALL, "--eval-episodes", "1", "--eval-every-steps", "128", "--out", str(out)]
+    assert main([*run, "--budget-steps", "256"]) == 0
+    state = json.loads((out / "state.json").read_text())
+    assert state["timesteps"] == 256 and state["sessions"] == 1
+    assert json.loads((out / "result.json").read_text())["timesteps"] == 256
     model = (out / "model.zip").read_bytes()
-    assert main([*TINY, "--out", str(out)]) == 2  # a second run into the same folder
+    icm = torch.load(out / "icm.pt", weights_only=True)["icm"]
+    assert (out / "training.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    printed = capsys.readouterr().out
+    assert "lesson 1 (oil-like) from step 64" in printed
+    assert "lesson 2 (honey-like) from step 128" in printed
+    assert "evaluation at 128 steps" in printed and "evaluation at 256 steps" in printed
+    with open(out / "logs" / "0" / "progress.csv") as f:
+        rows = list(csv.DictReader(f))
+    keys = set(rows[0])
+    for key in ("icm/inverse_loss", "icm/forward_loss", "icm/intrinsic_reward",
+                "curriculum/lesson", "eval/mean_abs_error_g", "eval/success_rate"):  # fmt: skip
+        assert key in keys, key
+    assert list((out / "logs" / "0").glob("events.out.tfevents.*"))
+
+    assert main([*run, "--budget-steps", "256"]) == 2  # a second run into the same folder
     assert "pass --resume" in capsys.readouterr().err
     assert (out / "model.zip").read_bytes() == model
-    assert main([*TINY, "--out", str(out), "--resume"]) == 0
-    assert json.loads((out / "result.json").read_text())["timesteps"] > first
+    assert main([*run, "--budget-steps", "256", "--resume"]) == 2  # nothing left to train
+    assert "spent its budget" in capsys.readouterr().err
+    assert main([*run, "--budget-steps", "512", "--resume", "--no-icm"]) == 2
+    assert "has icm=True, not False" in capsys.readouterr().err
+
+    assert main([*run, "--budget-steps", "512", "--resume"]) == 0
+    printed = capsys.readouterr().out
+    assert "resuming" in printed and "at 256 timesteps" in printed
+    assert "curriculum: lesson 2 (honey-like) from step 256" in printed
+    state = json.loads((out / "state.json").read_text())
+    assert state["timesteps"] == 512 and state["sessions"] == 2
+    resumed = torch.load(out / "icm.pt", weights_only=True)["icm"]
+    assert not torch.equal(resumed["encoder.0.weight"], icm["encoder.0.weight"])  # trained on
+    assert resumed["obs_count"] > icm["obs_count"]  # from the saved statistics, not afresh
+    assert (out / "logs" / "1" / "progress.csv").exists()
     assert not list(out.glob("*.partial*"))
 
 
 @pytest.mark.parametrize(
     "kw, words",
     [
+        ({"algorithm": "dqn"}, "algorithm must be one of .* got 'dqn'"),
+        ({"budget_steps": 0}, "budget_steps must be >= 1, got 0"),
+        ({"budget_steps": 1.5}, "budget_steps must be an integer, got 1.5"),
+        ({"icm": "yes"}, "icm must be True or False, got 'yes'"),
         ({"eval_episodes": 1.5}, "eval_episodes must be an integer, got 1.5"),
         ({"num_envs": 1.5}, "num_envs must be an integer, got 1.5"),
         ({"num_envs": True}, "num_envs must be an integer, got True"),
@@ -119,6 +180,19 @@ def test_resuming_a_corrupt_model_names_the_file(tmp_path, capsys) -> None:
     (out / "model.zip").write_text("not a model")
     assert main([*TINY, "--out", str(out), "--resume"]) == 2
     err = capsys.readouterr().err
-    assert "model.zip" in err and "is not a readable PPO model" in err
+    assert "state.json" in err and "missing or unreadable" in err
+    (out / "state.json").write_text(json.dumps({"args": vars(_args(TINY)), "timesteps": 0,
+                                                "train_s": 0.0, "sessions": 1}))  # fmt: skip
+    assert main([*TINY, "--out", str(out), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "model.zip" in err and "is not a saved Stable-Baselines3 model" in err
     assert (out / "model.zip").read_text() == "not a model"
-    assert sorted(p.name for p in out.iterdir()) == ["model.zip"]
+    assert sorted(p.name for p in out.iterdir()) == ["model.zip", "state.json"]
+
+
+def _args(argv: list[str]) -> argparse.Namespace:
+    from pourbench.agents.train import add_arguments
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    return parser.parse_args(argv)

@@ -1,0 +1,57 @@
+"""load_policy: the same call serves "pd", "random", a shipped name and a saved model (PPO,
+RecurrentPPO, SAC), each as f(obs, new_episode) -> action; unknown names list what exists."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from stable_baselines3 import SAC
+
+from pourbench.agents import load_policy
+from pourbench.agents.pd import PDConfig, PDPourer
+from pourbench.agents.sb3 import SB3PourVecEnv
+from pourbench.cli import main
+
+
+def _observations(n: int) -> np.ndarray:
+    env = SB3PourVecEnv(1, seed=0, workers=1, liquid="water")
+    space = env.observation_space
+    env.close()
+    space.seed(5)
+    return np.stack([space.sample() for _ in range(n)])
+
+
+def test_pd_and_random_by_name() -> None:
+    obs = _observations(5)
+    pd, ref = load_policy("pd"), PDPourer(1, PDConfig())
+    for k, o in enumerate(obs):
+        if k == 0:
+            ref.reset()
+        np.testing.assert_array_equal(pd(o, k == 0), ref.act(o))
+    a = [load_policy("random", seed=3)(o, False) for o in obs[:1]]
+    b = [load_policy("random", seed=3)(o, False) for o in obs[:1]]
+    np.testing.assert_array_equal(a, b)
+    acts = np.array([load_policy("random", seed=4)(o, False) for o in obs])
+    assert acts.shape == (5, 2) and np.all(np.abs(acts) <= 1.0)
+
+
+def test_a_saved_sac_model_acts_as_in_memory(tmp_path) -> None:
+    env = SB3PourVecEnv(1, seed=0, workers=1, liquid="water")
+    model = SAC("MlpPolicy", env, learning_starts=0, batch_size=8, seed=2, device="cpu")
+    model.learn(8)
+    model.save(tmp_path / "sac.zip")
+    env.close()
+    act = load_policy(tmp_path / "sac.zip")
+    for o in _observations(4):
+        np.testing.assert_array_equal(act(o, False), model.predict(o, deterministic=True)[0])
+
+
+def test_unknown_names_say_which_exist(capsys) -> None:
+    with pytest.raises(ValueError, match=r"unknown policy 'pournet-lstm'; known: pd, random"):
+        load_policy("pournet-lstm")
+    with pytest.raises(SystemExit):
+        main(["eval", "--policy", "pournet-lstm"])
+    err = capsys.readouterr().err
+    assert "'pournet-lstm' is neither a policy (pd, random" in err
+    with pytest.raises(ValueError, match=r"policy must be one of .* got 7"):
+        load_policy(7)
