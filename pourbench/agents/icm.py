@@ -5,7 +5,8 @@ have none; the thesis used Unity ML-Agents' built-in curiosity signal).
 
 The module has three networks:
 
-* a feature encoder ``φ(s)`` (observations normalised by a running mean and variance first),
+* a feature encoder ``φ(s)`` (observations normalised first by a running mean and variance,
+  updated with every step's observations before its bonus is computed),
 * an inverse model predicting the action from ``(φ(s), φ(s′))`` (continuous actions:
   squared error),
 * a forward model predicting ``φ̂(s′)`` from ``(φ(s), a)``.
@@ -55,7 +56,8 @@ class ICMConfig:
         epochs: passes over the stored transitions at each update.
         batch_size: transitions per gradient step.
         update_every: ``step_wait`` calls between updates (set it to the algorithm's
-            ``n_steps``; 0 means never train, only reward).
+            ``n_steps``); 0 freezes the ICM: it rewards but neither trains nor updates its
+            observation statistics.
     """
 
     eta: float = 0.02
@@ -147,11 +149,14 @@ class ICMTrainer:
         actions: np.ndarray,
         next_obs: np.ndarray,
         rng: np.random.Generator | None = None,
+        normalise: bool = True,
     ) -> dict[str, float]:
-        """``epochs`` passes over the transitions in shuffled minibatches; the mean inverse
-        and forward losses of the passes."""
+        """``epochs`` passes over the transitions in shuffled minibatches (first folding
+        their observations into the normaliser when ``normalise``); the mean inverse and
+        forward losses of the passes."""
         o, a, o2 = _tensors(obs, actions, next_obs)
-        self.icm.update_normaliser(torch.cat([o, o2]))
+        if normalise:
+            self.icm.update_normaliser(torch.cat([o, o2]))
         rng = rng or np.random.default_rng()
         cfg, n = self.config, len(o)
         inv_sum = fwd_sum = 0.0
@@ -228,6 +233,9 @@ class ICMVecEnv(VecEnvWrapper):
         next_obs = np.array(obs, np.float32, copy=True)
         for k in np.flatnonzero(done):
             next_obs[k] = infos[k]["terminal_observation"]
+        every = self.trainer.config.update_every
+        if every:  # the bonus of the very first steps already sees normalised observations
+            self.trainer.icm.update_normaliser(torch.as_tensor(next_obs))
         bonus = self.trainer.icm.intrinsic_reward(self._obs, self._actions, next_obs)
         for k, info in enumerate(infos):
             info["intrinsic_reward"] = float(bonus[k])
@@ -236,7 +244,6 @@ class ICMVecEnv(VecEnvWrapper):
         self._bonus_count += len(bonus)
         self._obs, self._actions = np.asarray(obs, np.float32), None
         self._calls += 1
-        every = self.trainer.config.update_every
         if every and self._calls % every == 0:
             self.update()
         return obs, (np.asarray(rew, np.float32) + bonus), done, infos
@@ -248,7 +255,7 @@ class ICMVecEnv(VecEnvWrapper):
         o, a, o2 = (np.concatenate(parts) for parts in zip(*self._buffer, strict=True))
         self._buffer.clear()
         self.stats = {
-            **self.trainer.update(o, a, o2, self._rng),
+            **self.trainer.update(o, a, o2, self._rng, normalise=False),
             "intrinsic_reward": self._bonus_sum / max(self._bonus_count, 1),
         }
         self._bonus_sum, self._bonus_count = 0.0, 0
