@@ -177,7 +177,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--policy",
         type=policy_name,
         default="pd",
-        help="pd, random, or a model saved by training (e.g. runs/ppo_pour/model.zip)",
+        help="pd, random, a shipped policy's name, or a model saved by training "
+        "(e.g. runs/pournet/model.zip)",
     )
     ev.add_argument("--liquid", default="water", help="liquid profile name")
     ev.add_argument("--target-g", type=positive_float, default=100.0, help="target amount, g")
@@ -188,7 +189,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     tr = sub.add_parser(
         "train",
-        help="train PPO (MLP) on Pour-v0 for a wall-clock budget; compare it with a random policy",
+        help="train PourNet (PPO / RecurrentPPO / SAC, ICM, curriculum) on Pour-v0; "
+        "compare it with a random policy",
         **defaults,
     )
     from pourbench.agents.train import add_arguments as train_arguments

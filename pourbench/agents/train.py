@@ -50,9 +50,10 @@ class TrainArgs:
         algorithm: ppo (with policy mlp: the FNN PourNet), recurrent_ppo (with policy lstm:
             the LSTM PourNet) or sac (mlp, one liquid, no ICM or curriculum).
         policy: mlp or lstm (see pourbench.agents.models for the architectures).
-        icm: add the curiosity module's intrinsic reward (PPO and RecurrentPPO).
-        curriculum: draw liquids from the curriculum's lessons, switched at 25 % and 50 % of
-            the budget (off: every episode pours liquid).
+        icm: the curiosity module's intrinsic reward is added (PPO and RecurrentPPO; on
+            by default).
+        curriculum: liquids are drawn from the curriculum's lessons, switched at 25 % and
+            50 % of the budget (on by default; off: every episode pours --liquid).
         num_envs: parallel worlds in the one vector env (the thesis' 32).
         workers: processes the worlds are spread over (0: one per core, at most one per
             world).
@@ -348,7 +349,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         flag = f"--{name.replace('_', '-')}"
         if name in ("icm", "curriculum"):
             parser.add_argument(
-                f"--no-{name}", dest=name, action="store_false", help=f"off: {helps[name]}"
+                f"--no-{name}", dest=name, action="store_false", help=f"turn off: {helps[name]}"
             )
             parser.set_defaults(**{name: True})
         elif isinstance(value, bool):
