@@ -196,3 +196,27 @@ def _args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser()
     add_arguments(parser)
     return parser.parse_args(argv)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "flags, algorithm",
+    [
+        (["--algorithm", "recurrent_ppo", "--policy", "lstm"], "recurrent_ppo"),
+        (["--algorithm", "sac", "--no-icm", "--no-curriculum"], "sac"),
+    ],
+)
+def test_lstm_and_sac_runs_save_models_that_load_policy_reads(tmp_path, flags, algorithm) -> None:
+    import numpy as np
+
+    from pourbench.agents import load_policy
+    from pourbench.agents.loading import algorithm_of
+
+    out = tmp_path / algorithm
+    argv = [*SMALL, "--n-steps", "64", "--budget-steps", "128", "--eval-episodes", "1"]
+    assert main([*argv, *flags, "--eval-every-steps", "0", "--out", str(out)]) == 0
+    assert algorithm_of(out / "model.zip") == algorithm
+    assert (out / "training.png").exists()
+    act = load_policy(out / "model.zip")
+    obs = np.zeros(12, np.float32)
+    assert act(obs, True).shape == (2,)
