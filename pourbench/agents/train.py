@@ -31,6 +31,7 @@ import os
 import sys
 import time
 import typing
+import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -234,6 +235,7 @@ def train(args: TrainArgs) -> dict:
     import torch
     from stable_baselines3.common.logger import configure
     from stable_baselines3.common.vec_env import VecMonitor
+    from tqdm import TqdmExperimentalWarning
 
     from pourbench.agents.callbacks import BudgetCallback, EvalCallback, PourStatsCallback
     from pourbench.agents.evaluate import evaluate
@@ -311,6 +313,8 @@ def train(args: TrainArgs) -> dict:
             callbacks.append(CurriculumCallback(progress, verbose=1))
         if args.eval_every_steps:
             callbacks.append(EvalCallback(args.eval_every_steps, evaluate_now))
+        # SB3's progress bar is tqdm.rich, which warns that it is experimental
+        warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)
         model.learn(
             total_timesteps=left_steps if left_steps is not None else 10**12,
             callback=callbacks,
