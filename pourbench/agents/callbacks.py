@@ -76,8 +76,8 @@ class BudgetCallback(BaseCallback):
         if now - self.saved >= self.checkpoint_s:
             self.checkpoint()
             self.saved = now
-        if self.bar is not None:
-            self.bar.n = min(round(now - self.t0), self.bar.total)
+        if self.bar is not None and int(now - self.t0) != self.bar.n:  # once a second
+            self.bar.n = min(int(now - self.t0), self.bar.total)
             self.bar.set_postfix(steps=self.num_timesteps, refresh=False)
             self.bar.refresh()
         return self.budget_s is None or now - self.t0 < self.budget_s

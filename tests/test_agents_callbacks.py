@@ -1,0 +1,41 @@
+"""Training's wall-clock budget stops a real PPO run and checkpoints on time; the plot reads
+every session's progress.csv in step order."""
+
+from __future__ import annotations
+
+import time
+
+from stable_baselines3 import PPO
+from stable_baselines3.common.vec_env import DummyVecEnv
+from toy_envs import Toy
+
+from pourbench.agents.callbacks import BudgetCallback
+from pourbench.agents.plots import plot_training, read_progress
+
+
+def test_a_wall_clock_budget_stops_training_and_checkpoints() -> None:
+    model = PPO("MlpPolicy", DummyVecEnv([Toy]), n_steps=16, batch_size=16, device="cpu")
+    model.learn(32)  # torch's first update takes a second of its own
+    saved: list[float] = []
+    budget = BudgetCallback(1.0, 0.2, lambda: saved.append(time.perf_counter()))
+    t0 = time.perf_counter()
+    model.learn(10**9, callback=budget)
+    took = time.perf_counter() - t0
+    assert 1.0 <= took < 5.0  # stops at the first step past the budget
+    assert 0 < model.num_timesteps < 10**9
+    assert len(saved) >= 3  # every 0.2 s of the 1 s
+
+
+def test_the_plot_reads_every_session_in_step_order(tmp_path) -> None:
+    for session, rows in {"0": [(64, 0.5, 1), (128, 0.3, 2)], "1": [(192, 0.2, 2)]}.items():
+        folder = tmp_path / "logs" / session
+        folder.mkdir(parents=True)
+        lines = ["time/total_timesteps,icm/intrinsic_reward,curriculum/lesson,rollout/ep_rew_mean"]
+        lines += [f"{s},{r},{k}," for s, r, k in rows]
+        (folder / "progress.csv").write_text("\n".join(lines) + "\n")
+    series = read_progress(sorted(tmp_path.glob("logs/*/progress.csv")))
+    assert series["icm/intrinsic_reward"] == [(64, 0.5), (128, 0.3), (192, 0.2)]
+    assert series["curriculum/lesson"] == [(64, 1), (128, 2), (192, 2)]
+    assert "rollout/ep_rew_mean" not in series  # empty cells are no points
+    png = plot_training(tmp_path)
+    assert png == tmp_path / "training.png" and png.read_bytes()[:4] == b"\x89PNG"
