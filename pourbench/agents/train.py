@@ -51,10 +51,10 @@ class TrainArgs:
         algorithm: ppo (with policy mlp: the FNN PourNet), recurrent_ppo (with policy lstm:
             the LSTM PourNet) or sac (mlp, one liquid, no ICM or curriculum).
         policy: mlp or lstm (see pourbench.agents.models for the architectures).
-        icm: the curiosity module's intrinsic reward is added (PPO and RecurrentPPO; on
-            by default).
-        curriculum: liquids are drawn from the curriculum's lessons, switched at 25 % and
-            50 % of the budget (on by default; off: every episode pours --liquid).
+        icm: add the curiosity module's intrinsic reward (PPO and RecurrentPPO);
+            --no-icm leaves it out.
+        curriculum: draw liquids from the curriculum's lessons, switched at 25 % and 50 %
+            of the budget; --no-curriculum pours --liquid in every episode.
         num_envs: parallel worlds in the one vector env (the thesis' 32).
         workers: processes the worlds are spread over (0: one per core, at most one per
             world).
@@ -352,9 +352,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for name, value in asdict(TrainArgs()).items():
         flag = f"--{name.replace('_', '-')}"
         if name in ("icm", "curriculum"):
-            parser.add_argument(
-                f"--no-{name}", dest=name, action="store_false", help=f"turn off: {helps[name]}"
-            )
+            parser.add_argument(f"--no-{name}", dest=name, action="store_false", help=helps[name])
             parser.set_defaults(**{name: True})
         elif isinstance(value, bool):
             parser.add_argument(flag, action="store_true", help=helps[name])
