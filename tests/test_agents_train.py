@@ -122,6 +122,9 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
     assert "curriculum: lesson 2 (honey-like) from step 256" in printed
     state = json.loads((out / "state.json").read_text())
     assert state["timesteps"] == 512 and state["sessions"] == 2
+    assert [h["timesteps"] for h in state["history"]] == [256, 512]
+    assert all(h["git_sha"] and h["machine"] and "--budget-steps" in h["command"]
+               for h in state["history"])  # fmt: skip
     resumed = torch.load(out / "icm.pt", weights_only=True)["icm"]
     assert not torch.equal(resumed["encoder.0.weight"], icm["encoder.0.weight"])  # trained on
     assert resumed["obs_count"] > icm["obs_count"]  # from the saved statistics, not afresh

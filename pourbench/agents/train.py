@@ -11,7 +11,7 @@ The run's folder (``--out``) holds:
 * ``model.zip``: the model, saved every ``--checkpoint-s`` seconds and at the end (through
   a temporary file: an interrupted run keeps its last checkpoint), with ``icm.pt`` (the
   curiosity module's weights and optimiser) and ``state.json`` (settings, steps, seconds
-  trained, sessions) beside it;
+  trained, and each session's command, git SHA, machine, date, steps and seconds) beside it;
 * ``logs/<session>/``: SB3's ``progress.csv`` and TensorBoard events
   (``tensorboard --logdir <out>/logs``), one folder per session;
 * ``training.png``: the training curves (:mod:`pourbench.agents.plots`);
@@ -184,6 +184,17 @@ def _save(model: Any, path: Path) -> None:
     os.replace(partial, path)
 
 
+def _provenance(command: str | None) -> dict[str, str]:
+    """Command line (``command``, else this process's), git SHA, machine and date of this
+    session (``state.json``'s history)."""
+    from pourbench.provenance import provenance
+
+    stamp = provenance()
+    if command is not None:
+        stamp["command"] = command
+    return stamp
+
+
 def _read_state(out: Path, args: TrainArgs) -> dict[str, Any]:
     """The run's ``state.json`` for a resume, checked against ``args``."""
     from pourbench.outputs import OutputPathError
@@ -208,16 +219,17 @@ def _read_state(out: Path, args: TrainArgs) -> dict[str, Any]:
     return state
 
 
-def train(args: TrainArgs) -> dict:
+def train(args: TrainArgs, command: str | None = None) -> dict:
     """Train until the budget is spent, write the plot, evaluate against a random policy;
-    the result (also written to ``<out>/result.json``)."""
+    the result (also written to ``<out>/result.json``). ``command`` is recorded as the
+    session's command line (None: this process's ``pourbench …`` arguments)."""
     from pourbench.envs.core import _known_liquid
     from pourbench.outputs import OutputPathError, check_output_folder, write_text_atomic
 
     _known_liquid(args.liquid)  # before any work: a typo fails in a second
     out = check_output_folder(args.out)
     model_path, icm_path = out / "model.zip", out / "icm.pt"
-    state = {"timesteps": 0, "train_s": 0.0, "sessions": 0}
+    state: dict[str, Any] = {"timesteps": 0, "train_s": 0.0, "sessions": 0, "history": []}
     if args.resume:
         state = _read_state(out, args)
     elif model_path.exists():
@@ -283,15 +295,20 @@ def train(args: TrainArgs) -> dict:
         def spent_s() -> float:
             return state["train_s"] + time.perf_counter() - t_start
 
+        stamp = _provenance(command)
+
         def checkpoint() -> None:
             _save(model, model_path)
             if icm is not None:
                 icm.save(icm_path)
+            steps, total_s = int(model.num_timesteps), spent_s()
+            session = {**stamp, "timesteps": steps, "session_s": total_s - state["train_s"]}
             now = {
                 "args": asdict(args),
-                "timesteps": int(model.num_timesteps),
-                "train_s": spent_s(),
+                "timesteps": steps,
+                "train_s": total_s,
                 "sessions": state["sessions"] + 1,
+                "history": [*state.get("history", []), session],
             }
             write_text_atomic(out / "state.json", json.dumps(now, indent=2) + "\n")
 
@@ -339,6 +356,7 @@ def train(args: TrainArgs) -> dict:
         "policy": final.summary(),
         "random": rnd.summary(),
         "plot": str(plot),
+        "provenance": stamp,
     }
     write_text_atomic(out / "result.json", json.dumps(result, indent=2) + "\n")
     return result
@@ -379,10 +397,11 @@ def _field_help() -> dict[str, str]:
     return {k: v.rstrip(".").replace("%", "%%") for k, v in helps.items()}
 
 
-def run(args: argparse.Namespace) -> int:
-    """Train with the parsed flags and print the result JSON (``ValueError`` on bad input)."""
+def run(args: argparse.Namespace, command: str | None = None) -> int:
+    """Train with the parsed flags and print the result JSON (``ValueError`` on bad input);
+    ``command``: see :func:`train`."""
     fields = TrainArgs.__dataclass_fields__
-    result = train(TrainArgs(**{k: v for k, v in vars(args).items() if k in fields}))
+    result = train(TrainArgs(**{k: v for k, v in vars(args).items() if k in fields}), command)
     print(json.dumps(result, indent=2))
     return 0
 
@@ -391,7 +410,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_arguments(parser)
     try:
-        return run(parser.parse_args(argv))
+        words = sys.argv[1:] if argv is None else argv
+        return run(parser.parse_args(argv), "python -m pourbench.agents.train " + " ".join(words))
     except ValueError as exc:  # bad input: one clear line, no traceback
         print(f"pourbench.agents.train: error: {exc}", file=sys.stderr)
         return 2

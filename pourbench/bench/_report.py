@@ -9,67 +9,17 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import platform
 import re
-import subprocess
-import sys
 from collections.abc import Mapping, Sequence
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pourbench.errors import InvalidParameterError
-
-
-def git_sha() -> str:
-    """Short SHA of HEAD, with ``-dirty`` when the tree has uncommitted changes outside
-    ``leaderboard/`` (so ``bench all`` stamps its later suites clean). For a copy of
-    the source run elsewhere (a tree shipped to a GPU machine, say), ``$POURBENCH_GIT_SHA``
-    names the commit it was copied from and takes precedence."""
-    if os.environ.get("POURBENCH_GIT_SHA"):
-        return os.environ["POURBENCH_GIT_SHA"] + " (copied tree)"
-    try:
-        sha = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
-        ).stdout.strip()
-        dirty = subprocess.run(  # tables written by an earlier suite of this run don't count
-            ["git", "status", "--porcelain", "--untracked-files=no", "--", ".", ":!leaderboard"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
-        return sha + ("-dirty" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
-def machine() -> str:
-    """One line describing this machine: CPU model, core count, OS, Python."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return (
-        f"{cpu}, {os.cpu_count()} cores, {platform.system()} {platform.release()}, "
-        f"Python {platform.python_version()}"
-    )
-
-
-def provenance() -> dict[str, str]:
-    """Command, git SHA, machine and UTC date of this run."""
-    return {
-        "command": "pourbench " + " ".join(sys.argv[1:]),
-        "git_sha": git_sha(),
-        "machine": machine(),
-        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
-    }
+from pourbench.provenance import git_sha as git_sha  # re-exported (moved there)
+from pourbench.provenance import machine as machine
+from pourbench.provenance import provenance
 
 
 def devices(choice: str, quick: bool = False) -> list[str]:
