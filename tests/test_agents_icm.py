@@ -20,8 +20,8 @@ def test_icm_losses_fall_on_a_fixed_set_of_transitions() -> None:
     act = rng.uniform(-1, 1, size=(512, 2)).astype(np.float32)
     mix = rng.normal(size=(2, 6)).astype(np.float32)
     next_obs = (obs + act @ mix).astype(np.float32)  # the action is readable from (s, s')
-    trainer = ICMTrainer(6, 2, ICMConfig(epochs=1, batch_size=128))
     torch.manual_seed(0)
+    trainer = ICMTrainer(6, 2, ICMConfig(epochs=1, batch_size=128))
     first = trainer.update(obs, act, next_obs, rng)
     for _ in range(60):
         last = trainer.update(obs, act, next_obs, rng)
