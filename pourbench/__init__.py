@@ -60,6 +60,12 @@ def register_envs() -> None:
             # with a TypeError. The environment passes Gymnasium's full check_env in the tests.
             disable_env_checker=True,
         )
+    if "pourbench/PourRobot-v0" not in registry:
+        register(
+            id="pourbench/PourRobot-v0",
+            entry_point="pourbench.envs.robot_pour:RobotPourEnv",
+            disable_env_checker=True,  # as Pour-v0 (a rejected first reset)
+        )
 
 
 try:  # register on import when Gymnasium is installed

@@ -1,4 +1,6 @@
-"""Gymnasium environments: ``pourbench/Pour-v0`` (single and vector).
+"""Gymnasium environments: ``pourbench/Pour-v0`` (single and vector) and
+``pourbench/PourRobot-v0`` (the robot in the loop, single; in
+:mod:`pourbench.envs.robot_pour`, not imported here so that the planners load only with it).
 
 ``import pourbench`` registers the ids (Gymnasium 1.x does not load ``gymnasium.envs`` entry
 points by itself; without the import, ``gymnasium.make("pourbench:pourbench/Pour-v0")``
@@ -17,7 +19,7 @@ from pourbench.envs.pour import PourEnv
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
 from pourbench.envs.vector import PourVectorEnv
 
-ENV_IDS: tuple[str, ...] = ("pourbench/Pour-v0",)
+ENV_IDS: tuple[str, ...] = ("pourbench/Pour-v0", "pourbench/PourRobot-v0")
 
 
 __all__ = [

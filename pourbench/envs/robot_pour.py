@@ -1,0 +1,656 @@
+"""``pourbench/PourRobot-v0``: PourNet's task with the robot in the loop (thesis §6.5.3, §6.6.2).
+
+The pouring container is the robot's end-effector. Each environment step (10 Hz):
+
+1. Algorithm 4 (:func:`~pourbench.envs.action_handler.handle_actions`, Pour-v0's handler,
+   unchanged) turns the action ``(ω, r)`` into the pouring container's next pose target:
+   its base point and its tilt, in the *task frame* (origin at the receiving container's
+   base, x toward the receiving container, tilt about +y through the rim centre, as in
+   Pour-v0). The task frame's x axis is world +y for both robots: the right hand pours to
+   its left.
+2. The target becomes an end-effector pose: the rim centre of the pouring container (the
+   planner's end-effector site ``pouring_rim``) and its orientation (the home orientation
+   tilted about the task frame's y axis).
+3. The planner (NMPC-MP, default, or the mink controller) is called once and returns the
+   arm's joint velocities for the step (so it runs at the environment's 10 Hz; its model
+   period ``ts`` is the control period). NMPC-MP runs with an iteration cap and no time
+   budget, so a seed gives the same episode on any machine.
+4. MuJoCo simulates the robot: the velocities are the integrated-velocity servos' controls
+   (``ctrl``), held for the control period's physics substeps. The containers are rigidly
+   attached to the grippers (child bodies of the gripper bodies: a perfect weld, no
+   contact grasp, no slip).
+5. The liquid is coupled two-way to both containers by
+   :class:`~pourbench.fluids.coupling.MujocoCoupling`: each substep the colliders take the
+   bodies' poses, the liquid steps, and its reaction on each container enters MuJoCo as
+   ``xfrc_applied`` for the next substep, so both wrist sensors feel the liquid.
+
+Robots:
+
+* ``robot="movo"``: the right Jaco2 pours; the stationary left arm holds the tray (10 cm
+  radius). The weight observation is the left wrist's F/T force, gravity-compensated for the
+  gripper (1.435 kg, Table 3.2; :mod:`pourbench.envs.ft_sensor`), tared on the empty tray,
+  with 0.15 N noise and the 2nd-order Butterworth low-pass (100 Hz, 1 Hz).
+* ``robot="panda"``: the Panda's hand pours into the tray standing on a table scale (the
+  same noise and filter).
+
+Safety: the planner keeps its hard clearance (``safety_distance``) between the pouring arm's
+collision capsules and the robot's body boxes, the other arm, the table and the receiving
+container. The episode ends (terminated) with ``info["collided"]`` when MuJoCo reports a
+contact (arm and table, container and table, container and container) or the containers
+overlap, and with ``info["planner_failed"]`` when the end-effector is further than
+``max_pos_error`` / ``max_rot_error`` from the step's target after the step, or the planner's
+QP fails.
+
+Batching: this first version runs one world (``num_envs=1``). The task's per-world state
+(handler state, filter, history, accounting, observation) is kept in ``(1, …)`` arrays and
+goes through Pour-v0's batched functions (handler, filter, reward, liquid accounting), so a
+batch only needs the rigid step to be batched too. What is *not* batched yet: the planner
+call (one NMPC/mink solve per world), the MuJoCo substeps (``mj_step`` on one ``MjData``) and
+the coupling's per-world pose sync; a vector env would need a batched MuJoCo path (MuJoCo
+Warp, or a threaded rollout) and one planner per world. There is no vector env, no
+rendering and no recording yet.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium.error import ResetNeeded
+
+from pourbench.containers import container_names, get_container
+from pourbench.envs.action_handler import ACTION_MODES, handle_actions
+from pourbench.envs.core import (
+    OBS_BOUND,
+    OBS_SIZE,
+    PourConfig,
+    _known_liquid,
+    default_solver_config,
+)
+from pourbench.envs.curriculum import load_curriculum
+from pourbench.envs.ft_sensor import gravity_compensate, vertical_load
+from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
+from pourbench.envs.pour import action_space, check_settings, observation_space
+from pourbench.envs.reward import ErrorHistory, extrinsic_reward
+from pourbench.errors import (
+    CapacityError,
+    InvalidParameterError,
+    UnknownNameError,
+    check_finite,
+    check_positive,
+)
+from pourbench.fluids import MujocoCoupling, PBFSolver
+from pourbench.fluids.metrics import count_liquid
+from pourbench.fluids.solver import container_lattice
+from pourbench.planners import (
+    MinkController,
+    NMPCConfig,
+    NMPCPlanner,
+    PlanningWorld,
+    arm_spec,
+)
+from pourbench.planners.distance import Box, obstacle_from_mujoco_geom
+from pourbench.planners.kinematics import ArmKinematics
+from pourbench.planners.robots import joint_speed_limits
+from pourbench.planners.rollout import rotation_error
+from pourbench.scene import ROBOTS, body_clearance, build_pour_scene
+
+PLANNERS: tuple[str, ...] = ("nmpc", "mink")
+EE_SITE = "pouring_rim"
+# task frame -> world: task x (toward the receiving container) is world +y
+_TASK_R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+_RESET_OPTIONS = ("container", "initial_g", "liquid", "start", "target_g")
+
+
+@dataclass(frozen=True)
+class RobotSettings:
+    """Robot-in-the-loop settings (SI units).
+
+    Attributes:
+        safety_distance: the planner's hard clearance to every obstacle, m.
+        nmpc_max_iter: NMPC-MP's SQP iteration cap per call (no time budget, so runs repeat).
+        q_pos, q_quat, pf_pos, pf_quat, r: NMPC-MP's weights. Table 4.2's (5, 0.1, 50, 10, 2)
+            trail the handler's moving target by several cm at the 0.1 s control period
+            (Table 4.2 predicts with 0.2 s steps toward still goals); these are 100 times the
+            stage and terminal weights against a tenth of the input weight, which track it
+            within 1.5 cm and 0.2 rad at the handler's full speeds.
+        max_pos_error: end-effector position error after a step above which the planner has
+            failed, m.
+        max_rot_error: the same for the orientation, rad.
+    """
+
+    safety_distance: float = 0.02
+    nmpc_max_iter: int = 5
+    q_pos: float = 500.0
+    q_quat: float = 10.0
+    pf_pos: float = 5000.0
+    pf_quat: float = 1000.0
+    r: float = 0.2
+    max_pos_error: float = 0.05
+    max_rot_error: float = 0.35
+
+    def __post_init__(self) -> None:
+        check_finite("safety_distance", self.safety_distance, minimum=0.0)
+        check_positive("max_pos_error", self.max_pos_error)
+        check_positive("max_rot_error", self.max_rot_error)
+        if not isinstance(self.nmpc_max_iter, int) or self.nmpc_max_iter < 1:
+            raise InvalidParameterError(
+                f"nmpc_max_iter must be an integer >= 1, got {self.nmpc_max_iter!r}"
+            )
+
+
+def _axis_quat(axis: np.ndarray, angle: float) -> np.ndarray:
+    """(w, x, y, z) rotation by ``angle`` (rad) about unit ``axis``."""
+    return np.r_[np.cos(angle / 2), np.sin(angle / 2) * np.asarray(axis, float)]
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    out = np.zeros(4)
+    mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
+    return out
+
+
+class RobotPourEnv(gym.Env):
+    """Pour a target amount with a robot: Pour-v0's task, its spaces, and a planner that
+    executes the action handler's end-effector motion (see the module docstring).
+
+    Observation and action: identical to ``pourbench/Pour-v0`` (12 values, 2 values), so a
+    Pour-v0 policy runs unchanged. Observation 7 is the wrist (Movo) or table-scale (Panda)
+    weight; observation 11 is the handler's tilt (the commanded one, as in Pour-v0; the
+    measured tilt is ``info["tilt_measured"]``).
+
+    ``info`` holds Pour-v0's keys plus ``tilt_measured``, ``planner_failed``, ``pos_error_m`` and
+    ``rot_error_rad`` (end-effector against the step's target), ``planner_time_s``,
+    ``force_raw_n`` (the weight sensor's vertical force, gravity-compensated, not tared) and
+    ``joint_velocity`` (the commanded arm velocities, rad/s).
+
+    Args:
+        robot: "movo" (default) or "panda".
+        planner: "nmpc" (default) or "mink".
+        settings: robot-in-the-loop settings.
+        render_mode: None (rendering is not implemented yet).
+        **kwargs: fields of :class:`~pourbench.envs.core.PourConfig`. The pouring container
+            is the first of ``container_set`` (the training cup by default).
+
+    Raises:
+        UnknownNameError: unknown robot or planner (a ``ValueError`` naming it and the known
+            ones).
+        InvalidParameterError: an unknown setting or a bad value.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "render_fps": 10}
+
+    def __init__(
+        self,
+        robot: str = "movo",
+        planner: str = "nmpc",
+        settings: RobotSettings | None = None,
+        render_mode: str | None = None,
+        **kwargs: Any,
+    ) -> None:
+        if not isinstance(robot, str) or robot not in ROBOTS:
+            raise UnknownNameError("robot", robot, ROBOTS)
+        if not isinstance(planner, str) or planner not in PLANNERS:
+            raise UnknownNameError("planner", planner, PLANNERS)
+        if render_mode is not None:
+            raise InvalidParameterError(
+                f"render_mode {render_mode!r} is not implemented for PourRobot-v0 yet; use None"
+            )
+        check_settings(kwargs)
+        cfg = PourConfig(**kwargs)
+        if cfg.action_mode not in ACTION_MODES:
+            raise InvalidParameterError(
+                f"unknown action_mode {cfg.action_mode!r}; known: {list(ACTION_MODES)}"
+            )
+        if cfg.liquid is not None:
+            _known_liquid(cfg.liquid)
+        self.settings = settings or RobotSettings()
+        if not isinstance(self.settings, RobotSettings):
+            raise InvalidParameterError(f"settings must be RobotSettings, got {settings!r}")
+        self.robot, self.planner_name, self.config = robot, planner, cfg
+        self.render_mode = None
+        self.observation_space = observation_space()
+        self.action_space = action_space()
+        self.lessons = load_curriculum(cfg.curriculum)
+        self.lesson = int(cfg.lesson)
+        self.container = container_names(cfg.container_set)[0]
+        self.pour = get_container(self.container)
+        self.recv = get_container(cfg.receiving)
+        scfg = cfg.solver or default_solver_config()
+        self.solver_config = scfg
+        self.substeps = max(1, round(1.0 / (cfg.control_hz * scfg.dt)))
+        self.control_dt = self.substeps * scfg.dt
+        # --- MuJoCo
+        self.scene = build_pour_scene(self.container, cfg.receiving, robot)
+        self.model = self.scene.model
+        self.model.opt.timestep = scfg.dt
+        self.data = self.scene.make_data()
+        self.home_qpos = self.data.qpos.copy()
+        self.home_act = self.data.act.copy()
+        m = self.model
+        arm = arm_spec("movo" if robot == "movo" else "panda")
+        self.arm = arm
+        self.kin = ArmKinematics(m, arm.joints, EE_SITE, arm.capsules, base_qpos=self.home_qpos)
+        jids = [m.joint(j).id for j in arm.joints]
+        self.act_ids = np.array(
+            [a for j in jids for a in range(m.nu) if m.actuator_trnid[a, 0] == j], int
+        )
+        self.act_adr = np.array([m.actuator_actadr[a] for a in self.act_ids], int)
+        self.vmax = joint_speed_limits(m, arm.joints, arm.speed_cap)
+        self.sensor_force = self.scene.scale_force
+        self.sensor_torque = self.scene.scale_torque
+        site_name = "left_ft" if robot == "movo" else "scale"
+        self.sensor_site = m.site(site_name).id
+        # task frame: origin at the receiving container's base at home
+        self.origin = self.data.xpos[m.body("receiving").id].copy()
+        self.tilt_axis = _TASK_R @ np.array([0.0, 1.0, 0.0])
+        self.rim_quat0 = self.kin.ee_pose(self.kin.home())[1]
+        # --- planner
+        self.obstacles = self._obstacles()
+        ts, s = self.control_dt, self.settings
+        if planner == "nmpc":
+            ncfg = NMPCConfig(
+                q_pos=s.q_pos,
+                q_quat=s.q_quat,
+                pf_pos=s.pf_pos,
+                pf_quat=s.pf_quat,
+                r=s.r,
+                ts=ts,
+                safety_distance=self.settings.safety_distance,
+                max_joint_speed=tuple(self.vmax),
+                max_iter=self.settings.nmpc_max_iter,
+            )
+            self.planner = NMPCPlanner(self.kin, ncfg)
+            self.plan_obstacles = self.obstacles
+        else:
+            statics = (*arm.body_boxes, *arm.other_capsules)
+            pw_spec = build_pour_scene(self.container, cfg.receiving, robot).spec
+            world = PlanningWorld(pw_spec, arm.capsules, self._dynamic_obstacles(), statics)
+            self.planner = MinkController(
+                world, arm.joints, EE_SITE, arm.capsules, ts=ts,
+                safety_distance=self.settings.safety_distance, max_joint_speed=self.vmax,
+                base_qpos=self.home_qpos,
+            )  # fmt: skip
+            self.plan_obstacles = self._dynamic_obstacles()  # the robot's own geoms are in world
+        # --- liquid
+        self.solver = PBFSolver(1, scfg)
+        self.coupling = MujocoCoupling(self.solver, m, [self.data])
+        self.coupling.add_geoms(["table_top"])
+        self.pour_col = self.coupling.add_container("pouring", self.pour.shape)[0]
+        self.recv_col = self.coupling.add_container("receiving", self.recv.shape)[0]
+        self.filter = WeightFilter(
+            1, cfg.sensor_rate_hz, cfg.sensor_cutoff_hz, noise_n=cfg.sensor_noise_n
+        )
+        self.history = ErrorHistory(1, cfg.reward.window)
+        self._shapes = [self.pour.shape, self.recv.shape]
+        self._half = np.array([max(self.recv.mouth_diameter / 2 - self.pour.diameter / 2, 0.01)])
+        self.rng: np.random.Generator | None = None
+        self._was_reset = False
+        self._done = False
+
+    # ------------------------------------------------------------------ geometry
+
+    def _obstacles(self) -> list:
+        """Planner obstacles: body boxes and the other arm (Movo), the table top, and a box
+        around the receiving container (all still during an episode)."""
+        m, d = self.model, self.data
+        geoms = [*self.arm.body_boxes, *self.arm.other_capsules]
+        out = []
+        for g in geoms:
+            gid = m.geom(g).id
+            out.append(
+                obstacle_from_mujoco_geom(
+                    int(m.geom_type[gid]), d.geom_xpos[gid], d.geom_xmat[gid], m.geom_size[gid]
+                )
+            )
+        return out + self._dynamic_obstacles()
+
+    def _dynamic_obstacles(self) -> list:
+        """The obstacles that are not robot geoms: table top and receiving container."""
+        m, d = self.model, self.data
+        t = m.geom("table_top").id
+        table = obstacle_from_mujoco_geom(
+            int(m.geom_type[t]), d.geom_xpos[t], d.geom_xmat[t], m.geom_size[t]
+        )
+        r = self.recv.diameter / 2
+        h = self.recv.rim_height
+        tray = Box(self.origin + np.array([0.0, 0.0, h / 2]), np.array([r, r, h / 2]))
+        return [table, tray]
+
+    def _to_world(self, base_task: np.ndarray, tilt: float) -> tuple[np.ndarray, np.ndarray]:
+        """End-effector target (rim centre, quaternion w x y z) of a task-frame base point
+        and tilt."""
+        rim = self.origin + _TASK_R @ (base_task + np.array([0.0, 0.0, self.pour.rim_height]))
+        return rim, _quat_mul(_axis_quat(self.tilt_axis, tilt), self.rim_quat0)
+
+    def _measured(self) -> tuple[np.ndarray, float, np.ndarray]:
+        """Rim centre (world), signed tilt about the task's tilt axis (rad), quaternion."""
+        p = self.data.site_xpos[self.model.site(EE_SITE).id].copy()
+        q = np.zeros(4)
+        mujoco.mju_mat2Quat(q, self.data.site_xmat[self.model.site(EE_SITE).id])
+        # relative rotation from home; its angle about the tilt axis
+        rel = _quat_mul(q, np.r_[self.rim_quat0[0], -self.rim_quat0[1:]])
+        if rel[0] < 0:
+            rel = -rel
+        tilt = 2.0 * np.arctan2(float(rel[1:] @ self.tilt_axis), rel[0])
+        return p, float(tilt), q
+
+    def capacity_g(self, density: float) -> float:
+        """Liquid (g) of ``density`` (kg/m³) the pouring container holds at the solver's
+        spacing."""
+        s = self.solver_config.spacing
+        return len(container_lattice(self.pour.shape, s)) * s**3 * 1e3 * density
+
+    # ------------------------------------------------------------------ reset
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        cfg = self.config
+        if seed is not None or self.rng is None:
+            self.rng = np.random.default_rng(seed)
+        rng = self.rng
+        if options is not None and not isinstance(options, Mapping):
+            raise InvalidParameterError(
+                f"reset options must be a dict such as {{'liquid': 'water'}}, got {options!r}"
+            )
+        opts = dict(options or {})
+        unknown = sorted(set(opts) - set(_RESET_OPTIONS))
+        if unknown:
+            raise InvalidParameterError(
+                f"unknown reset options {unknown}; known: {list(_RESET_OPTIONS)}"
+            )
+        if opts.get("container", self.container) != self.container:
+            raise UnknownNameError("pouring container", opts["container"], (self.container,))
+        liq = opts.get("liquid", cfg.liquid)
+        liquid = self.lessons[self.lesson].sample(rng) if liq is None else _known_liquid(liq)
+        cap = 0.85 * self.capacity_g(liquid.density)
+        holds = (
+            f"container {self.container!r} holds {cap:.0f} g of {liquid.name} at "
+            f"{liquid.density:.0f} kg/m^3 (85 % of its capacity)"
+        )
+        target = opts.get("target_g")
+        if target is None:
+            target = float(rng.uniform(*cfg.target_range_g))
+        target = check_positive("target_g", target)
+        particle_g = liquid.density * self.solver_config.spacing**3 * 1e3
+        if target < particle_g:
+            raise InvalidParameterError(
+                f"target_g={target:g} g is less than one particle of {liquid.name} "
+                f"({particle_g:.3g} g)"
+            )
+        if target > cap:
+            raise CapacityError(f"target_g={target:g} g is more than {holds}")
+        initial = opts.get("initial_g")
+        if initial is None:
+            initial = min(target + float(rng.uniform(*cfg.extra_range_g)), cap)
+        initial = check_finite("initial_g", initial)
+        if initial > cap:
+            raise CapacityError(f"initial_g={initial:g} g is more than {holds}")
+        if initial < target:
+            raise InvalidParameterError(
+                f"initial_g={initial:g} g is less than target_g={target:g} g"
+            )
+        start = opts.get("start")
+        if start is None:
+            start = [
+                rng.uniform(*cfg.start_x),
+                rng.uniform(*cfg.start_y),
+                rng.uniform(*cfg.start_height),
+            ]
+        start = np.asarray(start, float)
+        if start.shape != (3,) or not np.all(np.isfinite(start)):
+            raise InvalidParameterError(
+                f"start must be three finite numbers (x, y, height of the pouring container's "
+                f"base relative to the receiving container's, m), got {opts.get('start')!r}"
+            )
+        # the robot at home, the pouring arm moved to the start by IK
+        d, m = self.data, self.model
+        mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
+        goal_p, goal_q = self._to_world(start, 0.0)
+        q, err = self._ik(self.kin.home(), goal_p, goal_q)
+        if err > 2e-3:
+            raise InvalidParameterError(
+                f"start {start.tolist()} is out of the {self.robot}'s reach (IK error "
+                f"{err * 1e3:.1f} mm)"
+            )
+        d.qpos[self.kin.qadr] = q
+        d.act[self.act_adr] = q
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(m, d)
+        self.planner.reset() if hasattr(self.planner, "reset") else None
+        # episode state (arrays of one world)
+        self.liquid = liquid
+        self.base = start[None].copy()
+        self.tilt = np.zeros(1)
+        self.max_tilt = np.zeros(1)
+        self.measured_tilt = 0.0
+        self.target_g = np.array([target])
+        self.particle_g = particle_g
+        self.steps = 0
+        self.substep_count = 0
+        self.started = False
+        self.upright_steps = 0
+        self.liquid_obs = np.array(
+            [[liquid.density / 1e3, liquid.cohesion, liquid.surface_tension,
+              liquid.viscosity, liquid.adhesion]]
+        )  # fmt: skip
+        self.noise_key = rng.integers(0, 2**63, dtype=np.uint64)
+        self.noise_count = 0
+        # liquid
+        self.coupling.sync()
+        self.solver.clear_world(0)
+        self.solver.set_liquid(0, liquid)
+        n = self.solver.fill(0, self.pour_col, initial)
+        self.initial_g = n * particle_g
+        self.solver.step(0)
+        d.xfrc_applied[:] = 0.0
+        mujoco.mj_forward(m, d)
+        self.force_n = self._load_n()
+        self.filter.reset(0, self.force_n)  # tared on the empty receiving container
+        self._was_reset, self._done = True, False
+        info = self._info(self._measure())
+        info.update(collided=False, planner_failed=False, sim_diverged=False, is_success=False)
+        info["average_error_g"] = float(self.history.average()[0])
+        return self._observe(self.history.average()), info
+
+    def _ik(
+        self, q: np.ndarray, goal_p: np.ndarray, goal_q: np.ndarray
+    ) -> tuple[np.ndarray, float]:
+        """Damped least-squares IK of the pouring arm (rim site) to a pose; (q, pos error)."""
+        q = q.copy()
+        for _ in range(200):
+            s = self.kin.forward(q)
+            ep = goal_p - s.ee_pos[0]
+            rel = _quat_mul(goal_q, np.r_[s.ee_quat[0][0], -s.ee_quat[0][1:]])
+            er = 2.0 * rel[1:] * (1.0 if rel[0] >= 0 else -1.0)
+            e = np.r_[ep, er]
+            if np.linalg.norm(ep) < 1e-5 and np.linalg.norm(er) < 1e-4:
+                break
+            J = np.r_[s.jac_pos[0], s.jac_rot[0]]
+            q = q + J.T @ np.linalg.solve(J @ J.T + 1e-4 * np.eye(6), e)
+        return q, float(np.linalg.norm(goal_p - self.kin.forward(q).ee_pos[0]))
+
+    # ------------------------------------------------------------------ step
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if not self._was_reset or self._done:
+            when = "before its first reset" if not self._was_reset else "after its episode ended"
+            raise ResetNeeded(f"PourRobot-v0 was stepped {when}; call reset() first")
+        try:
+            a = np.asarray(action, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise InvalidParameterError(f"action must be two numbers, got {action!r}") from exc
+        if a.size != 2:
+            raise InvalidParameterError(
+                f"action must have shape (2,): (tilt rate, approach rate); got shape {a.shape}"
+            )
+        if not np.all(np.isfinite(a)):
+            raise InvalidParameterError(f"action must be finite, got {a.ravel().tolist()}")
+        cfg, d, m = self.config, self.data, self.model
+        new_base, new_tilt, _ = handle_actions(
+            a.reshape(1, 2), self.base, self.tilt, np.zeros((1, 3)), self._half,
+            self.recv.rim_height, self.filter.value_g, self.target_g, cfg.tolerance_g,
+            self.control_dt, cfg.limits, cfg.action_mode,
+        )  # fmt: skip
+        if cfg.action_mode == "free":
+            new_base[:, 2] = np.maximum(new_base[:, 2], 0.0)
+        goal_p, goal_q = self._to_world(new_base[0], float(new_tilt[0]))
+        q0 = d.qpos[self.kin.qadr].copy()
+        res = self.planner.plan(q0, goal_p, goal_q, self.plan_obstacles)
+        u = np.clip(np.asarray(res.u, float), -self.vmax, self.vmax)
+        qp_failed = getattr(res, "status", "") == "qp_failed"
+        d.ctrl[self.act_ids] = u
+        collided = False
+        rate = self.solver_config.dt * cfg.sensor_rate_hz
+        for _ in range(self.substeps):
+            mujoco.mj_step(m, d)
+            mujoco.mj_kinematics(m, d)
+            self.coupling.sync()
+            self.solver.step()
+            self.coupling.apply()
+            collided |= bool(np.any(d.contact.dist[: d.ncon] < 0.0)) if d.ncon else False
+            self.substep_count += 1
+            s = self.substep_count
+            if np.floor(s * rate + 1e-9) > np.floor((s - 1) * rate + 1e-9):
+                self.force_n = self._load_n()
+                noise = counter_normals(
+                    np.array([self.noise_key]), np.array([self.noise_count], np.uint64)
+                )
+                self.noise_count += 1
+                self.filter.sample(np.array([0]), np.array([self.force_n]), noise)
+        d.ctrl[self.act_ids] = 0.0
+        self.base, self.tilt = new_base, new_tilt
+        self.max_tilt = np.maximum(self.max_tilt, self.tilt)
+        p, self.measured_tilt, quat = self._measured()
+        pos_err = float(np.linalg.norm(p - goal_p))
+        rot_err = rotation_error(quat, goal_q)
+        collided |= body_clearance(m, d, "pouring", "receiving") < 0.0
+        s = self.settings
+        planner_failed = (
+            qp_failed or pos_err > s.max_pos_error or rot_err > s.max_rot_error
+        ) and not collided
+        diverged = bool(self.solver.diverged()[0]) or not np.all(np.isfinite(d.qpos))
+        info = self._measure()
+        self.steps += 1
+        if self.max_tilt[0] >= cfg.pour_tilt:
+            self.started = True
+        upright = self.started and self.tilt[0] <= cfg.upright_tilt
+        self.upright_steps = self.upright_steps + 1 if upright else 0
+        finished = (
+            upright
+            and (
+                info["in_flight_g"][0] < cfg.stream_stop_g
+                or self.upright_steps * self.control_dt >= cfg.settle_time - 1e-9
+            )
+            and not collided
+            and not diverged
+            and not planner_failed
+        )
+        if finished:
+            self.history.add(np.array([0]), info["error_g"])
+        avg = self.history.average()
+        pouring = self.filter.value_g < self.target_g - cfg.tolerance_g
+        hit = np.array([collided or planner_failed])
+        reward = extrinsic_reward(
+            pouring, hit, np.array([finished]), info["error_g"], avg, cfg.max_steps, cfg.reward
+        )
+        terminated = (collided or planner_failed or finished) and not diverged
+        truncated = (self.steps >= cfg.max_steps and not terminated) or diverged
+        self._done = terminated or truncated
+        out = self._info(info)
+        out.update(
+            collided=bool(collided),
+            planner_failed=bool(planner_failed),
+            sim_diverged=diverged,
+            is_success=bool(finished and out["error_g"] <= cfg.reward.success_g),
+            average_error_g=float(avg[0]),
+            pos_error_m=pos_err,
+            rot_error_rad=rot_err,
+            planner_time_s=float(res.solve_time_s),
+            joint_velocity=u.copy(),
+            force_raw_n=float(self.force_n),
+        )
+        return self._observe(avg), float(reward[0]), bool(terminated), bool(truncated), out
+
+    # ------------------------------------------------------------------ read
+
+    def _load_n(self) -> float:
+        """The weight sensor's vertical load, N (gravity-compensated on the Movo)."""
+        d, m = self.data, self.model
+        f = d.sensor(self.sensor_force).data.copy()[None]
+        rot = d.site_xmat[self.sensor_site].reshape(1, 3, 3)
+        if self.robot == "movo":
+            t = d.sensor(self.sensor_torque).data.copy()[None]
+            f, _ = gravity_compensate(f, t, rot)
+        del m
+        return float(vertical_load(f, rot)[0])
+
+    def weight_g_true(self) -> float:
+        """Noise-free, unfiltered, tared weight reading after the last step, g."""
+        return (self.force_n - self.filter.tare_n[0]) / GRAVITY * 1e3
+
+    def _measure(self) -> dict[str, np.ndarray]:
+        m, d = self.model, self.data
+        poses = np.empty((1, 2, 7))
+        for k, name in enumerate(("pouring", "receiving")):
+            b = m.body(name).id
+            poses[0, k, :3] = d.xpos[b]
+            poses[0, k, 3:6], poses[0, k, 6] = d.xquat[b][1:], d.xquat[b][0]
+        inside, spilled, flight = count_liquid(
+            self.solver.positions(), self.solver.worlds(), 1, poses, np.array([[0, 1]]),
+            self._shapes, self.solver_config.spacing,
+        )  # fmt: skip
+        g = self.particle_g
+        out = {
+            "poured_g": inside[:, 1] * g,
+            "spilled_g": spilled * g,
+            "remaining_g": inside[:, 0] * g,
+            "in_flight_g": flight * g,
+            "initial_g": np.array([self.initial_g]),
+            "target_g": self.target_g.copy(),
+        }
+        out["error_g"] = np.abs(out["poured_g"] - out["target_g"])
+        out["measured_g"] = self.filter.value_g.copy()
+        out["tilt"] = self.tilt.copy()
+        out["tilt_measured"] = np.array([self.measured_tilt])
+        return out
+
+    def _info(self, info: dict[str, np.ndarray]) -> dict[str, Any]:
+        out: dict[str, Any] = {k: float(v[0]) for k, v in info.items()}
+        out["liquid"] = self.liquid.name
+        out["container"] = self.container
+        out["robot"] = self.robot
+        out["planner"] = self.planner_name
+        return out
+
+    def _observe(self, avg: np.ndarray) -> np.ndarray:
+        weight = self.filter.value_g
+        obs = np.empty((1, OBS_SIZE))
+        obs[:, :5] = self.liquid_obs
+        obs[:, 5] = self.pour.diameter
+        obs[:, 6] = self.pour.depth
+        obs[:, 7] = weight
+        obs[:, 8] = self.target_g
+        obs[:, 9] = self.target_g - weight
+        obs[:, 10] = avg
+        obs[:, 11] = self.tilt  # the handler's tilt, as Pour-v0 observes it
+        obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
+        return np.clip(obs, -OBS_BOUND, OBS_BOUND).astype(np.float32)[0]
+
+    def ee_target(self) -> tuple[np.ndarray, np.ndarray]:
+        """The end-effector pose (rim centre, quaternion w x y z) the handler asked for last."""
+        return self._to_world(self.base[0], float(self.tilt[0]))
+
+    def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """The end-effector's measured pose (rim centre, quaternion w x y z)."""
+        p, _, q = self._measured()
+        return p, q
+
+
+__all__ = ["PLANNERS", "RobotPourEnv", "RobotSettings"]
