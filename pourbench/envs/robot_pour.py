@@ -503,7 +503,9 @@ class RobotPourEnv(gym.Env):
         goal_p, goal_q = self._to_world(new_base[0], float(new_tilt[0]))
         q0 = d.qpos[self.kin.qadr].copy()
         res = self.planner.plan(q0, goal_p, goal_q, self.plan_obstacles)
-        u = np.clip(np.asarray(res.u, float), -self.vmax, self.vmax)
+        # the QP solvers' SIMD sums depend on where numpy put their arrays (1e-15 rad/s
+        # differences between runs): rounding keeps a seed's episode the same
+        u = np.clip(np.round(np.asarray(res.u, float), 9), -self.vmax, self.vmax)
         qp_failed = getattr(res, "status", "") == "qp_failed"
         d.ctrl[self.act_ids] = u
         collided = False

@@ -1,0 +1,207 @@
+"""PourRobot-v0: the robot in the loop with real MuJoCo, the real planners and the real liquid.
+
+Fast: construction through Gymnasium, spaces equal Pour-v0's, bad input refused with the
+value named, same seed same episode, the planner tracking the handler's end-effector target,
+collision and planner-failure flags, the F/T gravity compensation. Slow: PD baseline pours
+and the left wrist's reading of settled liquid.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.error import ResetNeeded
+
+import pourbench  # noqa: F401  (registers the ids)
+from pourbench.agents.pd import PDPourer
+from pourbench.envs.ft_sensor import GRIPPER_MASS, gravity_compensate, vertical_load
+from pourbench.envs.observation import GRAVITY
+from pourbench.envs.pour import PourEnv
+from pourbench.envs.robot_pour import RobotPourEnv, RobotSettings
+from pourbench.errors import CapacityError, InvalidParameterError, UnknownNameError
+
+COMBOS = [("movo", "nmpc"), ("movo", "mink"), ("panda", "nmpc"), ("panda", "mink")]
+
+
+def test_made_through_gymnasium_with_pour_v0_spaces() -> None:
+    env = gym.make("pourbench/PourRobot-v0")
+    robot = env.unwrapped
+    assert isinstance(robot, RobotPourEnv)
+    assert (robot.robot, robot.planner_name) == ("movo", "nmpc")  # the defaults
+    pour = PourEnv()
+    assert env.observation_space == pour.observation_space
+    assert env.action_space == pour.action_space
+    obs, info = env.reset(seed=0)
+    assert obs.shape == (12,) and obs.dtype == np.float32
+    assert env.observation_space.contains(obs)
+    assert info["collided"] is False and info["planner_failed"] is False
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "exc", "match"),
+    [
+        ({"robot": "ur5"}, UnknownNameError, r"'ur5'.*movo.*panda"),
+        ({"planner": "rrt"}, UnknownNameError, r"'rrt'.*mink, nmpc"),
+        ({"liquid": "lava"}, UnknownNameError, r"'lava'"),
+        ({"max_step": 10}, InvalidParameterError, r"'max_step'"),
+    ],
+)
+def test_bad_construction_is_refused_naming_the_value(kwargs, exc, match) -> None:
+    with pytest.raises(exc, match=match):
+        RobotPourEnv(**kwargs)
+
+
+def test_bad_actions_and_targets_are_refused_naming_the_value() -> None:
+    env = RobotPourEnv(robot="panda", liquid="water")
+    with pytest.raises(ResetNeeded):
+        env.step(np.zeros(2))
+    env.reset(seed=0, options={"target_g": 100.0})
+    with pytest.raises(InvalidParameterError, match=r"finite.*nan"):
+        env.step(np.array([np.nan, 0.0]))
+    with pytest.raises(InvalidParameterError, match=r"shape \(2,\).*\(3,\)"):
+        env.step(np.zeros(3))
+    with pytest.raises(CapacityError, match=r"target_g=5000 g.*'training' holds \d+ g"):
+        env.reset(options={"target_g": 5000.0})
+    with pytest.raises(CapacityError, match=r"initial_g=900 g"):
+        env.reset(options={"target_g": 100.0, "initial_g": 900.0})
+    with pytest.raises(InvalidParameterError, match=r"unknown reset options \['colour'\]"):
+        env.reset(options={"colour": "red"})
+    with pytest.raises(UnknownNameError, match=r"'bottle'"):
+        env.reset(options={"container": "bottle"})
+    with pytest.raises(InvalidParameterError, match=r"out of the panda's reach"):
+        env.reset(options={"start": [-0.25, 0.0, 2.0]})
+    # a refused step changed nothing: the episode goes on
+    env.reset(seed=0, options={"target_g": 100.0})
+    env.step(np.zeros(2))
+
+
+def _run(env: RobotPourEnv, seed: int, actions: np.ndarray) -> tuple[np.ndarray, list]:
+    obs, _ = env.reset(seed=seed)
+    out, infos = [obs], []
+    for a in actions:
+        obs, rew, term, trunc, info = env.step(a)
+        out.append(obs)
+        infos.append((rew, term, trunc, info["poured_g"], info["pos_error_m"]))
+        assert not (term or trunc)
+    return np.array(out), infos
+
+
+@pytest.mark.parametrize(("robot", "planner"), [("movo", "nmpc"), ("panda", "mink")])
+def test_same_seed_same_episode(robot: str, planner: str) -> None:
+    acts = np.tile([[1.0, 1.0]], (25, 1))  # approach, then tilt over the tray
+    a, ia = _run(RobotPourEnv(robot=robot, planner=planner), 5, acts)
+    b, ib = _run(RobotPourEnv(robot=robot, planner=planner), 5, acts)
+    np.testing.assert_array_equal(a, b)
+    assert ia == ib
+    assert a[-1, 11] > 0.3  # it did tilt: the run covered the approach and the turn
+    c, _ = _run(RobotPourEnv(robot=robot, planner=planner), 6, acts[:1])
+    assert not np.array_equal(a[0], c[0])  # another seed: another liquid or target
+
+
+@pytest.mark.parametrize(("robot", "planner"), COMBOS)
+def test_planner_tracks_the_handler_target_once_settled(robot: str, planner: str) -> None:
+    """Approach (translation), tilt 0.5 rad, then hold: the rim reaches the handler's pose
+    target within 1 cm and 2 degrees once the target stands still."""
+    env = RobotPourEnv(robot=robot, planner=planner, liquid="water")
+    env.reset(seed=1, options={"start": [-0.22, 0.03, 0.12], "target_g": 150.0})
+    worst = 0.0
+    for a in [(0.0, 1.0)] * 20 + [(1.0, 0.0)] * 6 + [(0.0, 0.0)] * 15:
+        obs, _, term, trunc, info = env.step(np.array(a))
+        assert not (term or trunc), info
+        worst = max(worst, info["pos_error_m"])
+    assert obs[11] == pytest.approx(6 * 0.08, abs=1e-6)  # 6 steps at 0.8 rad/s
+    goal_p, goal_q = env.ee_target()
+    p, q = env.ee_pose()
+    assert np.linalg.norm(p - goal_p) <= 0.01
+    assert 2 * np.arccos(min(1.0, abs(float(q @ goal_q)))) <= np.radians(2.0)
+    assert info["tilt_measured"] == pytest.approx(obs[11], abs=np.radians(2.0))
+    assert worst < 0.03  # while moving at the handler's full speed, too
+
+
+@pytest.mark.parametrize(("robot", "planner"), COMBOS)
+def test_driving_the_container_into_the_tray_wall_ends_the_episode(robot, planner) -> None:
+    """Algorithm 4 approaches horizontally from a start whose base is below the tray's rim:
+    either the planner, keeping its clearance to the table and the tray, cannot follow
+    (``planner_failed``), or the cup (which the planner does not model) touches the tray
+    (``collided``, a MuJoCo contact). The cup never passes through."""
+    env = RobotPourEnv(robot=robot, planner=planner, liquid="water")
+    env.reset(seed=0, options={"start": [-0.25, 0.0, 0.01], "target_g": 100.0})
+    for _ in range(30):
+        _, rew, term, trunc, info = env.step(np.array([0.0, 1.0]))
+        if term or trunc:
+            break
+    assert term and not trunc
+    assert info["collided"] != info["planner_failed"]  # one flag, the one that happened
+    assert rew <= -1.0  # Algorithm 5's collision penalty
+    if (robot, planner) == ("movo", "mink"):  # mink lets the arm follow: the cup hits
+        assert info["collided"] and env.data.ncon > 0
+
+
+def test_a_planner_that_misses_its_target_ends_the_episode() -> None:
+    env = RobotPourEnv(robot="movo", settings=RobotSettings(max_pos_error=1e-4))
+    env.reset(seed=0, options={"target_g": 100.0})
+    _, _, term, _, info = env.step(np.array([0.0, 1.0]))
+    assert term and info["planner_failed"] and not info["collided"]
+
+
+def test_gravity_compensation_removes_the_gripper_whatever_its_orientation() -> None:
+    rng = np.random.default_rng(0)
+    rot = np.linalg.qr(rng.normal(size=(4, 3, 3)))[0]
+    rot *= np.linalg.det(rot)[:, None, None]  # proper rotations
+    load = 0.3  # kg held below the gripper
+    up = np.einsum("nji,j->ni", rot, [0.0, 0.0, 1.0])  # world up in the sensor frame
+    force = (GRIPPER_MASS + load) * GRAVITY * up
+    comp, _ = gravity_compensate(force, np.zeros((4, 3)), rot)
+    np.testing.assert_allclose(vertical_load(comp, rot), load * GRAVITY, atol=1e-9)
+
+
+def test_movo_left_wrist_reads_the_tray_and_not_the_gripper() -> None:
+    """At reset the compensated left-wrist force is the empty tray's weight (0.2 kg), not
+    gripper + tray: the gripper's 1.435 kg is compensated."""
+    env = RobotPourEnv(robot="movo", liquid="water")
+    _, info = env.reset(seed=0, options={"target_g": 100.0})
+    assert env.force_n == pytest.approx(0.2 * GRAVITY, abs=0.02)
+    assert info["measured_g"] == 0.0
+
+
+def _pd_pour(robot: str, planner: str, seed: int, target: float) -> dict:
+    env = RobotPourEnv(robot=robot, planner=planner, liquid="water")
+    obs, info = env.reset(seed=seed, options={"target_g": target})
+    pd = PDPourer(1)
+    for _ in range(env.config.max_steps):
+        obs, _, term, trunc, info = env.step(pd.act(obs))
+        if term or trunc:
+            break
+    return {**info, "terminated": term, "truncated": trunc}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("robot", ["movo", "panda"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pd_baseline_pours_100_g_of_water_within_10_g(robot: str, seed: int) -> None:
+    out = _pd_pour(robot, "nmpc", seed, 100.0)
+    assert out["terminated"] and not out["truncated"]
+    assert not out["collided"] and not out["planner_failed"] and not out["sim_diverged"]
+    assert out["error_g"] <= 10.0, out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("grams", [50.0, 150.0])
+def test_left_wrist_reads_settled_liquid_in_the_tray_within_2_g(grams: float) -> None:
+    """Liquid placed in the tray held by the Movo's left hand settles for 3 s with the robot
+    still; the filtered, gravity-compensated, tared wrist reading (averaged over the last
+    second's ten observations) is the liquid's mass within 2 g."""
+    env = RobotPourEnv(robot="movo", liquid="water")
+    env.reset(seed=0, options={"target_g": 100.0})
+    n = env.solver.fill(0, env.recv_col, grams)
+    mass = n * env.particle_g
+    env.solver.step(0)
+    readings = []
+    for _ in range(40):
+        obs, _, term, trunc, info = env.step(np.zeros(2))  # nothing moves
+        assert not (term or trunc)
+        readings.append(obs[7])
+    inside = info["poured_g"]
+    assert inside == pytest.approx(mass, abs=1.0)  # settled in the tray
+    assert np.mean(readings[-10:]) == pytest.approx(inside, abs=2.0)
