@@ -351,7 +351,7 @@ def run(args: argparse.Namespace) -> int:
             f"## Cost of liquid that holds ({checks_device})" if hold else "",
             "",
             "A world iterates past `iterations` while some particle is more than "
-            "`max_density_error` too dense (`SolverConfig`; Pour-v0 15 %, the defaults 3 %). "
+            "`max_density_error` too dense (`SolverConfig`; Pour-v0 15 %, the defaults 1.5 %). "
             "`ms_per_step_fixed`: the same run on its fixed `iterations`, in the same process."
             if hold
             else "",

@@ -89,45 +89,47 @@ def spiky_grad(r: wp.vec3, dist: float, h: float, coef: float) -> wp.vec3:
 
 
 @wp.func
-def density_pair(
-    d2: float, h: float, grad_c: float, scorr_k: float, scorr_n: float, scorr_wdq: float
-) -> wp.vec3:
+def density_pair(d2: float, h: float, grad_c: float, scorr: wp.vec4) -> wp.vec3:
     """Terms of a pair at squared distance ``d2``: (gradient factor, tensile s_corr, W).
 
-    ∇_i W_ij = factor · r_ij; s_corr = −k (W_poly6(r)/W_poly6(Δq))^n (Macklin & Müller 2013,
-    Eq. 13); W is the spiky density kernel (without its constant)."""
+    ∇_i W_ij = factor · r_ij; s_corr = −k ((W_poly6(r)/W_poly6(Δq))^n − c) with ``scorr`` =
+    (k, n, W_poly6(Δq), c): Macklin & Müller 2013's Eq. 13 less an offset c that makes the
+    term exert no net force on a particle in a flat free surface (see
+    :func:`pourbench.fluids.solver._scorr_offset`); W is the spiky density kernel (without
+    its constant)."""
     dist = wp.sqrt(d2)
-    ratio = poly6(d2, h) / scorr_wdq
+    ratio = poly6(d2, h) / scorr[2]
     s_corr = float(0.0)
-    if scorr_n == 4.0:
-        s_corr = -scorr_k * (ratio * ratio) * (ratio * ratio)
+    if scorr[1] == 4.0:
+        s_corr = -scorr[0] * ((ratio * ratio) * (ratio * ratio) - scorr[3])
     else:
-        s_corr = -scorr_k * wp.pow(ratio, scorr_n)
+        s_corr = -scorr[0] * (wp.pow(ratio, scorr[1]) - scorr[3])
     return wp.vec3(spiky_factor(dist, h, grad_c), s_corr, spiky(dist, h))
 
 
 @wp.func
-def density_term(
-    r: wp.vec3, h: float, grad_c: float, scorr_k: float, scorr_n: float, scorr_wdq: float
-) -> vec5:
+def density_term(r: wp.vec3, h: float, grad_c: float, scorr: wp.vec4) -> vec5:
     """A pair's share of the density sums: ∇_i W_ij (xyz), W_ij and |∇W_ij|²."""
-    terms = density_pair(wp.dot(r, r), h, grad_c, scorr_k, scorr_n, scorr_wdq)
+    terms = density_pair(wp.dot(r, r), h, grad_c, scorr)
     g = r * terms[0]
     return vec5(g[0], g[1], g[2], terms[2], wp.dot(g, g))
 
 
 @wp.func
-def delta_term(
-    r: wp.vec3,
-    lam_sum: float,
-    h: float,
-    grad_c: float,
-    scorr_k: float,
-    scorr_n: float,
-    scorr_wdq: float,
-) -> wp.vec3:
-    """A pair's share of Δp_i: (λ_i + λ_j + s_corr) ∇_i W_ij, ``lam_sum`` = λ_i + λ_j."""
-    terms = density_pair(wp.dot(r, r), h, grad_c, scorr_k, scorr_n, scorr_wdq)
+def pair_lambda(li: float, lj: float, di: float, dj: float, koff: float, band: float) -> float:
+    """λ_i + λ_j plus the part of s_corr's offset k c (:func:`density_pair`) a pair does not
+    take: k c (s − 1), with s the pair's share of a free surface from its sparser particle's
+    ρ/ρ0 (``di``, ``dj``): 1 at or below a flat surface's density (1 − ``band``), 0 at rest
+    density, linear between. ``koff`` = k c."""
+    share = wp.clamp((1.0 - wp.min(di, dj)) / band, 0.0, 1.0)
+    return li + lj + koff * (share - 1.0)
+
+
+@wp.func
+def delta_term(r: wp.vec3, lam_sum: float, h: float, grad_c: float, scorr: wp.vec4) -> wp.vec3:
+    """A pair's share of Δp_i: (λ_i + λ_j + s_corr) ∇_i W_ij, ``lam_sum`` from
+    :func:`pair_lambda`."""
+    terms = density_pair(wp.dot(r, r), h, grad_c, scorr)
     return r * ((lam_sum + terms[1]) * terms[0])
 
 
@@ -652,9 +654,7 @@ def pair_kernels(half: bool) -> PairKernels:
         stride: int,
         h: float,
         grad_c: float,
-        scorr_k: float,
-        scorr_n: float,
-        scorr_wdq: float,
+        scorr: wp.vec4,
         w0: float,
         eps: float,
         wall: wp.array(dtype=wp.vec4),
@@ -691,15 +691,15 @@ def pair_kernels(half: bool) -> PairKernels:
                 j0, j1 = nbr[k], nbr[k + stride]
                 j2, j3 = nbr[k + 2 * stride], nbr[k + 3 * stride]
                 r0, r1, r2, r3 = pi - p[j0], pi - p[j1], pi - p[j2], pi - p[j3]
-                acc += density_term(r0, h, grad_c, scorr_k, scorr_n, scorr_wdq)
-                acc += density_term(r1, h, grad_c, scorr_k, scorr_n, scorr_wdq)
-                acc += density_term(r2, h, grad_c, scorr_k, scorr_n, scorr_wdq)
-                acc += density_term(r3, h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                acc += density_term(r0, h, grad_c, scorr)
+                acc += density_term(r1, h, grad_c, scorr)
+                acc += density_term(r2, h, grad_c, scorr)
+                acc += density_term(r3, h, grad_c, scorr)
                 k += 4 * stride
         while k < k_end:
             j = nbr[k]
             r = pi - p[j]
-            terms = density_pair(wp.dot(r, r), h, grad_c, scorr_k, scorr_n, scorr_wdq)
+            terms = density_pair(wp.dot(r, r), h, grad_c, scorr)
             w = terms[2]
             g = r * terms[0]  # ∇_i W_ij = −∇_j W_ij
             g2 = wp.dot(g, g)
@@ -725,25 +725,28 @@ def pair_kernels(half: bool) -> PairKernels:
         nbr_count: wp.array(dtype=wp.int32),
         stride: int,
         lam: wp.array(dtype=float),
+        density: wp.array(dtype=float),
         pair: wp.array(dtype=wp.vec2),
         h: float,
         grad_c: float,
-        scorr_k: float,
-        scorr_n: float,
-        scorr_wdq: float,
+        scorr: wp.vec4,
+        band: float,
         world: wp.array(dtype=wp.int32),
         active: wp.array(dtype=wp.int32),
         delta: wp.array(dtype=wp.vec3),
     ):
-        """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi); half lists read the pair terms
-        cached by :func:`density_sums` and add each pair to both particles, full lists
-        recompute them (``delta`` is zero on entry; :func:`apply_delta` clears it). Worlds no
-        longer ``active`` are skipped."""
+        """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi), s_corr's offset weighted by the
+        pair's share of a free surface (:func:`pair_lambda`, from ``density``: ρ/ρ0 of the
+        same iteration); half lists read the pair terms cached by :func:`density_sums` and add
+        each pair to both particles, full lists recompute them (``delta`` is zero on entry;
+        :func:`apply_delta` clears it). Worlds no longer ``active`` are skipped."""
         i = wp.tid()
         if active[world[i]] == 0:
             return
         pi = p[i]
         li = lam[i]
+        di = density[i]
+        koff = scorr[0] * scorr[3]
         dp = wp.vec3(0.0)
         k = nbr_start[i]
         k_end = k + nbr_count[i] * stride
@@ -752,21 +755,25 @@ def pair_kernels(half: bool) -> PairKernels:
                 j0, j1 = nbr[k], nbr[k + stride]
                 j2, j3 = nbr[k + 2 * stride], nbr[k + 3 * stride]
                 r0, r1, r2, r3 = pi - p[j0], pi - p[j1], pi - p[j2], pi - p[j3]
-                l0, l1, l2, l3 = li + lam[j0], li + lam[j1], li + lam[j2], li + lam[j3]
-                dp += delta_term(r0, l0, h, grad_c, scorr_k, scorr_n, scorr_wdq)
-                dp += delta_term(r1, l1, h, grad_c, scorr_k, scorr_n, scorr_wdq)
-                dp += delta_term(r2, l2, h, grad_c, scorr_k, scorr_n, scorr_wdq)
-                dp += delta_term(r3, l3, h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                l0 = pair_lambda(li, lam[j0], di, density[j0], koff, band)
+                l1 = pair_lambda(li, lam[j1], di, density[j1], koff, band)
+                l2 = pair_lambda(li, lam[j2], di, density[j2], koff, band)
+                l3 = pair_lambda(li, lam[j3], di, density[j3], koff, band)
+                dp += delta_term(r0, l0, h, grad_c, scorr)
+                dp += delta_term(r1, l1, h, grad_c, scorr)
+                dp += delta_term(r2, l2, h, grad_c, scorr)
+                dp += delta_term(r3, l3, h, grad_c, scorr)
                 k += 4 * stride
         while k < k_end:
             j = nbr[k]
             r = pi - p[j]
+            lam_sum = pair_lambda(li, lam[j], di, density[j], koff, band)
             t = wp.vec3(0.0)
             if wp.static(half):
                 e = pair[k]
-                t = r * ((li + lam[j] + e[1]) * e[0])
+                t = r * ((lam_sum + e[1]) * e[0])
             else:
-                t = delta_term(r, li + lam[j], h, grad_c, scorr_k, scorr_n, scorr_wdq)
+                t = delta_term(r, lam_sum, h, grad_c, scorr)
             dp += t
             if wp.static(half):
                 wp.atomic_sub(delta, j, t)

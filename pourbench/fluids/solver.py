@@ -102,7 +102,8 @@ class SolverConfig:
             probe), with 0.99 it holds 997–1003 kg/m³, with 0.985 1000. (Before the wall
             term of the density constraint, 0.97 gave 995: liquid packed denser at walls.)
         scorr_k, scorr_n, scorr_dq: tensile-instability term s_corr = −k (W(r)/W(Δq))^n,
-            with Δq = scorr_dq × h.
+            with Δq = scorr_dq × h, offset at free surfaces so that it does not push a flat
+            surface outward (:func:`_scorr_offset`, docs/contact.md).
         max_neighbours: capacity of a particle's neighbour list (full lists: all its
             neighbours; half lists: the pairs it owns). At rest density a particle has about
             33 neighbours within h, at the foot of a collapsing 25 cm column (the bench's dam
@@ -154,7 +155,7 @@ class SolverConfig:
     spacing: float = 0.005
     dt: float = 1.0 / 240.0
     iterations: int = 4
-    max_density_error: float = 0.03
+    max_density_error: float = 0.015
     max_iterations: int = 64
     smoothing: float = 2.0
     relaxation: float = 0.01
@@ -402,17 +403,20 @@ class PBFSolver:
         self.pairk = K.HALF_LISTS if self.half_lists else K.FULL_LISTS
         self.w0, self.grad_c, sum_grad2 = _rest_sums(self.config)
         self.wall_coef = _wall_coef(self.config)
-        n = math.ceil(self.config.smoothing)
-        g = np.arange(-n, n + 1) * self.config.spacing
-        lat = np.linalg.norm(np.stack(np.meshgrid(g, g, g), -1).reshape(-1, 3), axis=1)
+        lat = np.linalg.norm(_lattice(self.config), axis=1)
         self.lattice_neighbours = int(np.count_nonzero((lat > 0) & (lat < self.config.h)))
         self.coh_norm, self.curv_norm = _surface_norms(self.config, self.grad_c)
         self.eps = self.config.relaxation * sum_grad2
         # λ carries units of m² here (C is dimensionless, ∇C is 1/m), so the dimensionless
         # s_corr of Macklin & Müller is scaled by the rest neighbourhood's 1/Σ|∇C|².
-        self.scorr_scale = self.config.scorr_k / sum_grad2
         dq = self.config.scorr_dq * self.config.h
-        self.scorr_wdq = (self.config.h**2 - dq * dq) ** 3
+        self.scorr = wp.vec4(
+            self.config.scorr_k / sum_grad2,
+            self.config.scorr_n,
+            (self.config.h**2 - dq * dq) ** 3,
+            _scorr_offset(self.config),
+        )
+        self.surface_band = 1.0 - _flat_surface_density(self.config)
         self.liquids: list[LiquidProfile] = [liquid_profile("water")] * self.num_worlds
         self.colliders: list[Collider] = []
         self.num_body_slots = 0
@@ -978,7 +982,7 @@ class PBFSolver:
         artificial pressure a step applies does not grow with the iterations it takes."""
         cfg = self.config
         tag = "_extra" if extra else ""
-        scorr = 0.0 if extra else self.scorr_scale
+        scorr = wp.vec4(0.0, 4.0, 1.0, 0.0) if extra else self.scorr
         self.worst.zero_()
         self._launch(
             "density_sums" + tag,
@@ -992,8 +996,6 @@ class PBFSolver:
                 cfg.h,
                 self.grad_c,
                 scorr,
-                cfg.scorr_n,
-                self.scorr_wdq,
                 self.w0,
                 self.eps,
                 self.wall,
@@ -1030,12 +1032,12 @@ class PBFSolver:
                 self.nbr_count,
                 self.nbr_stride,
                 self.lam,
+                self.density,
                 self.pair,
                 cfg.h,
                 self.grad_c,
                 scorr,
-                cfg.scorr_n,
-                self.scorr_wdq,
+                self.surface_band,
                 self.world,
                 self.active,
             ],
@@ -1403,17 +1405,50 @@ class PBFSolver:
         return out
 
 
+def _lattice(cfg: SolverConfig) -> np.ndarray:
+    """Offsets (m) of a cubic lattice of ``spacing`` around a particle at the origin, out to
+    at least h along each axis (the origin included)."""
+    n = math.ceil(cfg.h / cfg.spacing)
+    g = np.arange(-n, n + 1) * cfg.spacing
+    return np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+
+
+def _flat_surface_density(cfg: SolverConfig) -> float:
+    """ρ/ρ0 of a particle in the flat top face of a cubic lattice (spiky kernel sums)."""
+    pts = _lattice(cfg)
+    w = np.clip(cfg.h - np.linalg.norm(pts, axis=1), 0.0, None) ** 3
+    return float(w[pts[:, 2] <= 0].sum() / w.sum())
+
+
+def _scorr_offset(cfg: SolverConfig) -> float:
+    """The offset c of the tensile term s_corr = −k ((W(r)/W(Δq))^n − c) that a pair in a free
+    surface takes in full (:func:`pourbench.fluids.kernels.pair_lambda`): the mean of
+    (W(r)/W(Δq))^n over a cubic lattice's half-space below a particle, weighted by each
+    neighbour's ∇W along the surface normal. With it s_corr exerts no net force on a particle
+    in a flat free surface (Macklin & Müller's term, c = 0, pushes it outward, and with the
+    unilateral density constraint nothing pulls it back: a free drop flies apart); the term
+    still pushes pairs closer than about a spacing apart and pulls wider ones together."""
+    h = cfg.h
+    pts = _lattice(cfg)
+    below = pts[pts[:, 2] < 0]
+    r = np.linalg.norm(below, axis=1)
+    ok = r < h
+    r, z = r[ok], -below[ok, 2]
+    dq = cfg.scorr_dq * h
+    ratio = (h * h - r * r) ** 3 / (h * h - dq * dq) ** 3
+    weight = z * (h - r) ** 2 / r  # the spiky gradient's component along the normal
+    return float(np.sum(ratio**cfg.scorr_n * weight) / np.sum(weight))
+
+
 def _surface_norms(cfg: SolverConfig, grad_c: float) -> tuple[float, float]:
     """Magnitudes of the cohesion and curvature sums of a particle on a flat lattice surface.
 
     Dividing by them makes FleX's cohesion / surface-tension coefficients fractions of
     ``cohesion_accel`` / ``surface_tension_accel`` at a flat free surface, at any spacing.
     """
-    h, d = cfg.h, cfg.spacing
-    n = math.ceil(h / d)
-    g = np.arange(-n, n + 1) * d
-    pts = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
-    below = pts[pts[:, 2] <= 0]  # half-space lattice; the particle sits at the origin
+    h = cfg.h
+    below = _lattice(cfg)
+    below = below[below[:, 2] <= 0]  # half-space lattice; the particle sits at the origin
     dist = np.linalg.norm(below, axis=1)
     ok = (dist > 0) & (dist < h)
     r = dist[ok]
