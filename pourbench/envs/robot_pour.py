@@ -115,9 +115,10 @@ class RobotSettings:
         nmpc_max_iter: NMPC-MP's SQP iteration cap per call (no time budget, so runs repeat).
         q_pos, q_quat, pf_pos, pf_quat, r: NMPC-MP's weights. Table 4.2's (5, 0.1, 50, 10, 2)
             trail the handler's moving target by several cm at the 0.1 s control period
-            (Table 4.2 predicts with 0.2 s steps toward still goals); these are 100 times the
-            stage and terminal weights against a tenth of the input weight, which track it
-            within 1.5 cm and 0.2 rad at the handler's full speeds.
+            (Table 4.2 predicts with 0.2 s steps toward still goals) and fall far behind a
+            full-rate tilt. These (100× the position weights, 2000× / 500× the quaternion
+            ones, a tenth of the input weight) track within 1.7 cm and 0.06 rad at the
+            handler's full speeds (docs/robot_pour.md).
         max_pos_error: end-effector position error after a step above which the planner has
             failed, m.
         max_rot_error: the same for the orientation, rad.
@@ -126,9 +127,9 @@ class RobotSettings:
     safety_distance: float = 0.02
     nmpc_max_iter: int = 5
     q_pos: float = 500.0
-    q_quat: float = 10.0
+    q_quat: float = 200.0
     pf_pos: float = 5000.0
-    pf_quat: float = 1000.0
+    pf_quat: float = 5000.0
     r: float = 0.2
     max_pos_error: float = 0.05
     max_rot_error: float = 0.35
