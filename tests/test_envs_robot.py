@@ -9,6 +9,7 @@ and the left wrist's reading of settled liquid.
 from __future__ import annotations
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import pytest
 from gymnasium.error import ResetNeeded
@@ -136,6 +137,21 @@ def test_driving_the_container_into_the_tray_wall_ends_the_episode(robot, planne
     assert rew <= -1.0  # Algorithm 5's collision penalty
     if (robot, planner) == ("movo", "mink"):  # mink lets the arm follow: the cup hits
         assert info["collided"] and env.data.ncon > 0
+
+
+def test_the_pouring_arm_touching_the_other_arm_is_a_collision() -> None:
+    """MuJoCo makes no contacts between robot links; the overlap check covers them: the
+    Movo's cup put into its left gripper (by IK on the real model) overlaps, home does not."""
+    env = RobotPourEnv(robot="movo")
+    env.reset(seed=0, options={"target_g": 100.0})
+    m, d = env.model, env.data
+    assert not env._self_pairs.overlapping(d)
+    left = d.site_xpos[m.site("left_ee").id] + np.array([0.05, 0.0, 0.0])
+    q, err = env._ik(env.kin.home(), left, env.rim_quat0)
+    assert err < 1e-4
+    d.qpos[env.kin.qadr] = q
+    mujoco.mj_kinematics(m, d)
+    assert env._self_pairs.overlapping(d)
 
 
 def test_a_planner_that_misses_its_target_ends_the_episode() -> None:

@@ -37,9 +37,10 @@ Safety: the planner keeps its hard clearance (``safety_distance``) between the p
 collision capsules and the robot's body boxes, the other arm, the table and the receiving
 container. The episode ends (terminated) with ``info["collided"]`` when MuJoCo reports a
 contact (arm and table, container and table, container and container) or the containers
-overlap, and with ``info["planner_failed"]`` when the end-effector is further than
-``max_pos_error`` / ``max_rot_error`` from the step's target after the step, or the planner's
-QP fails.
+overlap, or the pouring arm, its gripper or the cup overlaps the rest of the robot (robot
+links make no MuJoCo contacts with each other), and with ``info["planner_failed"]`` when
+the end-effector is further than ``max_pos_error`` / ``max_rot_error`` from the step's target
+after the step, or the planner's QP fails.
 
 Batching: this first version runs one world (``num_envs=1``). The task's per-world state
 (handler state, filter, history, accounting, observation) is kept in ``(1, …)`` arrays and
@@ -97,7 +98,7 @@ from pourbench.planners.distance import Box, obstacle_from_mujoco_geom
 from pourbench.planners.kinematics import ArmKinematics
 from pourbench.planners.robots import joint_speed_limits
 from pourbench.planners.rollout import rotation_error
-from pourbench.scene import ROBOTS, body_clearance, build_pour_scene
+from pourbench.scene import ROBOTS, STATIC_CONTYPE, body_clearance, build_pour_scene
 
 PLANNERS: tuple[str, ...] = ("nmpc", "mink")
 EE_SITE = "pouring_rim"
@@ -250,6 +251,7 @@ class RobotPourEnv(gym.Env):
         self.origin = self.data.xpos[m.body("receiving").id].copy()
         self.tilt_axis = _TASK_R @ np.array([0.0, 1.0, 0.0])
         self.rim_quat0 = self.kin.ee_pose(self.kin.home())[1]
+        self._self_pairs = _SelfCollision(m, arm.joints[0])
         # --- planner
         self.obstacles = self._obstacles()
         ts, s = self.control_dt, self.settings
@@ -534,6 +536,7 @@ class RobotPourEnv(gym.Env):
         pos_err = float(np.linalg.norm(p - goal_p))
         rot_err = rotation_error(quat, goal_q)
         collided |= body_clearance(m, d, "pouring", "receiving") < 0.0
+        collided |= self._self_pairs.overlapping(d)
         s = self.settings
         planner_failed = (
             qp_failed or pos_err > s.max_pos_error or rot_err > s.max_rot_error
@@ -654,6 +657,39 @@ class RobotPourEnv(gym.Env):
         """The end-effector's measured pose (rim centre, quaternion w x y z)."""
         p, _, q = self._measured()
         return p, q
+
+
+class _SelfCollision:
+    """Overlaps MuJoCo makes no contacts for: the pouring arm (its links from the body of
+    joint ``first_joint`` on, its gripper and the held cup) against the rest of the robot
+    (body, head, the other arm and its tray), and the cup against the robot. Bounding
+    spheres pick the pairs that ``mj_geomDistance`` then measures."""
+
+    def __init__(self, model: mujoco.MjModel, first_joint: str) -> None:
+        root = int(model.jnt_bodyid[model.joint(first_joint).id])
+        sub = np.zeros(model.nbody, bool)
+        for b in range(model.nbody):  # bodies are numbered parents first
+            sub[b] = b == root or (b > 0 and sub[model.body_parentid[b]])
+        parent = int(model.body_parentid[root])
+        solid = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+        # floor, table, pedestal: MuJoCo makes the contacts with them
+        scenery = (model.geom_contype == STATIC_CONTYPE) & (model.geom_conaffinity == 0)
+        body = model.geom_bodyid
+        self.a = np.flatnonzero(solid & sub[body])
+        self.b = np.flatnonzero(solid & ~scenery & ~sub[body] & (body != parent))
+        self.model = model
+
+    def overlapping(self, data: mujoco.MjData) -> bool:
+        """Whether a pouring-side geom overlaps a geom of the rest of the robot."""
+        m = self.model
+        xa, xb = data.geom_xpos[self.a], data.geom_xpos[self.b]
+        gap = np.linalg.norm(xa[:, None] - xb[None], axis=2)
+        gap -= m.geom_rbound[self.a][:, None] + m.geom_rbound[self.b][None]
+        for i, j in zip(*np.nonzero(gap < 0.0), strict=True):
+            g1, g2 = int(self.a[i]), int(self.b[j])
+            if mujoco.mj_geomDistance(m, data, g1, g2, 0.01, None) < 0.0:
+                return True
+        return False
 
 
 __all__ = ["PLANNERS", "RobotPourEnv", "RobotSettings"]
