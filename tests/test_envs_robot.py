@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 import pytest
 from gymnasium.error import ResetNeeded
+from gymnasium.utils.env_checker import check_env
 
 import pourbench  # noqa: F401  (registers the ids)
 from pourbench.agents.pd import PDPourer
@@ -37,6 +38,11 @@ def test_made_through_gymnasium_with_pour_v0_spaces() -> None:
     assert obs.shape == (12,) and obs.dtype == np.float32
     assert env.observation_space.contains(obs)
     assert info["collided"] is False and info["planner_failed"] is False
+
+
+@pytest.mark.parametrize(("robot", "planner"), [("movo", "nmpc"), ("panda", "mink")])
+def test_gymnasium_env_checker(robot: str, planner: str) -> None:
+    check_env(RobotPourEnv(robot=robot, planner=planner, max_steps=10), skip_render_check=True)
 
 
 @pytest.mark.parametrize(

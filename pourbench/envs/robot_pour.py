@@ -82,6 +82,7 @@ from pourbench.errors import (
     InvalidParameterError,
     UnknownNameError,
     check_finite,
+    check_index,
     check_positive,
 )
 from pourbench.fluids import MujocoCoupling, PBFSolver
@@ -166,7 +167,7 @@ class RobotPourEnv(gym.Env):
     measured tilt is ``info["tilt_measured"]``).
 
     ``info`` holds Pour-v0's keys plus ``tilt_measured``, ``planner_failed``, ``pos_error_m`` and
-    ``rot_error_rad`` (end-effector against the step's target), ``planner_time_s``,
+    ``rot_error_rad`` (end-effector against the step's target),
     ``force_raw_n`` (the weight sensor's vertical force, gravity-compensated, not tared) and
     ``joint_velocity`` (the commanded arm velocities, rad/s).
 
@@ -218,7 +219,7 @@ class RobotPourEnv(gym.Env):
         self.observation_space = observation_space()
         self.action_space = action_space()
         self.lessons = load_curriculum(cfg.curriculum)
-        self.lesson = int(cfg.lesson)
+        self.set_lesson(cfg.lesson)
         self.container = container_names(cfg.container_set)[0]
         self.pour = get_container(self.container)
         self.recv = get_container(cfg.receiving)
@@ -232,7 +233,6 @@ class RobotPourEnv(gym.Env):
         self.model.opt.timestep = scfg.dt
         self.data = self.scene.make_data()
         self.home_qpos = self.data.qpos.copy()
-        self.home_act = self.data.act.copy()
         m = self.model
         arm = arm_spec("movo" if robot == "movo" else "panda")
         self.arm = arm
@@ -292,8 +292,13 @@ class RobotPourEnv(gym.Env):
         self._shapes = [self.pour.shape, self.recv.shape]
         self._half = np.array([max(self.recv.mouth_diameter / 2 - self.pour.diameter / 2, 0.01)])
         self.rng: np.random.Generator | None = None
+        self.planner_time_s = 0.0  # wall time of the last planner call, s
         self._was_reset = False
         self._done = False
+
+    def set_lesson(self, k: int) -> None:
+        """Draw liquids from curriculum lesson ``k`` at later resets (when ``liquid`` is None)."""
+        self.lesson = check_index("lesson", k, len(self.lessons))
 
     # ------------------------------------------------------------------ geometry
 
@@ -426,7 +431,8 @@ class RobotPourEnv(gym.Env):
         d.act[self.act_adr] = q
         d.qvel[:] = 0.0
         mujoco.mj_forward(m, d)
-        self.planner.reset() if hasattr(self.planner, "reset") else None
+        if isinstance(self.planner, NMPCPlanner):
+            self.planner.reset()  # forget the last episode's warm start
         # episode state (arrays of one world)
         self.liquid = liquid
         self.base = start[None].copy()
@@ -506,6 +512,7 @@ class RobotPourEnv(gym.Env):
         goal_p, goal_q = self._to_world(new_base[0], float(new_tilt[0]))
         q0 = d.qpos[self.kin.qadr].copy()
         res = self.planner.plan(q0, goal_p, goal_q, self.plan_obstacles)
+        self.planner_time_s = float(res.solve_time_s)  # wall time: kept out of info
         # the QP solvers' SIMD sums depend on where numpy put their arrays (1e-15 rad/s
         # differences between runs): rounding keeps a seed's episode the same
         u = np.clip(np.round(np.asarray(res.u, float), 9), -self.vmax, self.vmax)
@@ -578,7 +585,6 @@ class RobotPourEnv(gym.Env):
             average_error_g=float(avg[0]),
             pos_error_m=pos_err,
             rot_error_rad=rot_err,
-            planner_time_s=float(res.solve_time_s),
             joint_velocity=u.copy(),
             force_raw_n=float(self.force_n),
         )
@@ -588,13 +594,12 @@ class RobotPourEnv(gym.Env):
 
     def _load_n(self) -> float:
         """The weight sensor's vertical load, N (gravity-compensated on the Movo)."""
-        d, m = self.data, self.model
+        d = self.data
         f = d.sensor(self.sensor_force).data.copy()[None]
         rot = d.site_xmat[self.sensor_site].reshape(1, 3, 3)
         if self.robot == "movo":
             t = d.sensor(self.sensor_torque).data.copy()[None]
             f, _ = gravity_compensate(f, t, rot)
-        del m
         return float(vertical_load(f, rot)[0])
 
     def weight_g_true(self) -> float:
