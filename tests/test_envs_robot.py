@@ -167,6 +167,21 @@ def test_a_planner_that_misses_its_target_ends_the_episode() -> None:
     assert term and info["planner_failed"] and not info["collided"]
 
 
+@pytest.mark.parametrize("robot", ["movo", "panda"])
+def test_rgb_array_shows_the_scene_and_the_liquid(robot: str) -> None:
+    env = RobotPourEnv(robot=robot, liquid="water", render_mode="rgb_array")
+    env.reset(seed=0, options={"target_g": 100.0})
+    img = env.render()
+    assert img.shape == (480, 640, 3) and img.dtype == np.uint8
+    assert img.std() > 20  # a scene, not a blank frame
+    env.solver.clear_world(0)  # the same scene without its liquid
+    env.solver.step(0)
+    changed = np.abs(img.astype(int) - env.render().astype(int)).sum(-1) > 30
+    assert changed.sum() > 200  # the particles (in the cup, behind its translucent wall)
+    env.close()
+    assert RobotPourEnv(robot=robot).render() is None  # render_mode None draws nothing
+
+
 def test_gravity_compensation_removes_the_gripper_whatever_its_orientation() -> None:
     rng = np.random.default_rng(0)
     rot = np.linalg.qr(rng.normal(size=(4, 3, 3)))[0]

@@ -48,8 +48,8 @@ goes through Pour-v0's batched functions (handler, filter, reward, liquid accoun
 batch only needs the rigid step to be batched too. What is *not* batched yet: the planner
 call (one NMPC/mink solve per world), the MuJoCo substeps (``mj_step`` on one ``MjData``) and
 the coupling's per-world pose sync; a vector env would need a batched MuJoCo path (MuJoCo
-Warp, or a threaded rollout) and one planner per world. There is no vector env, no
-rendering and no recording yet.
+Warp, or a threaded rollout) and one planner per world. There is no vector env and no
+rerun recording yet; ``render_mode="rgb_array"`` draws the robot, containers and liquid.
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ from pourbench.envs.core import (
 from pourbench.envs.curriculum import load_curriculum
 from pourbench.envs.ft_sensor import gravity_compensate, vertical_load
 from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
-from pourbench.envs.pour import action_space, check_settings, observation_space
+from pourbench.envs.pour import RENDER_SIZE, action_space, check_settings, observation_space
 from pourbench.envs.reward import ErrorHistory, extrinsic_reward
 from pourbench.errors import (
     CapacityError,
@@ -175,7 +175,8 @@ class RobotPourEnv(gym.Env):
         robot: "movo" (default) or "panda".
         planner: "nmpc" (default) or "mink".
         settings: robot-in-the-loop settings.
-        render_mode: None (rendering is not implemented yet).
+        render_mode: None or "rgb_array" (MuJoCo's offscreen renderer: the robot, the
+            containers, translucent, and the liquid's particles as spheres).
         **kwargs: fields of :class:`~pourbench.envs.core.PourConfig`. The pouring container
             is the first of ``container_set`` (the training cup by default).
 
@@ -185,7 +186,7 @@ class RobotPourEnv(gym.Env):
         InvalidParameterError: an unknown setting or a bad value.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "render_fps": 10}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(
         self,
@@ -199,9 +200,9 @@ class RobotPourEnv(gym.Env):
             raise UnknownNameError("robot", robot, ROBOTS)
         if not isinstance(planner, str) or planner not in PLANNERS:
             raise UnknownNameError("planner", planner, PLANNERS)
-        if render_mode is not None:
+        if render_mode not in (None, "rgb_array"):
             raise InvalidParameterError(
-                f"render_mode {render_mode!r} is not implemented for PourRobot-v0 yet; use None"
+                f"render_mode must be None or 'rgb_array', got {render_mode!r}"
             )
         check_settings(kwargs)
         cfg = PourConfig(**kwargs)
@@ -215,7 +216,8 @@ class RobotPourEnv(gym.Env):
         if not isinstance(self.settings, RobotSettings):
             raise InvalidParameterError(f"settings must be RobotSettings, got {settings!r}")
         self.robot, self.planner_name, self.config = robot, planner, cfg
-        self.render_mode = None
+        self.render_mode = render_mode
+        self._renderer: mujoco.Renderer | None = None
         self.observation_space = observation_space()
         self.action_space = action_space()
         self.lessons = load_curriculum(cfg.curriculum)
@@ -589,6 +591,44 @@ class RobotPourEnv(gym.Env):
             force_raw_n=float(self.force_n),
         )
         return self._observe(avg), float(reward[0]), bool(terminated), bool(truncated), out
+
+    # ------------------------------------------------------------------ render
+
+    def render(self) -> np.ndarray | None:
+        """RGB image (480, 640, 3) of the robot, the containers and the liquid, seen from
+        in front of the robot; None unless ``render_mode="rgb_array"``."""
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.model, *RENDER_SIZE, max_geom=20000)
+        cam = mujoco.MjvCamera()
+        cam.lookat[:] = self.origin + np.array([0.0, -0.1, 0.1])
+        cam.distance, cam.azimuth, cam.elevation = 1.3, 200.0, -25.0
+        opt = mujoco.MjvOption()
+        opt.sitegroup[:] = 0
+        opt.geomgroup[3] = 0  # the planner's capsules
+        r = self._renderer
+        r.update_scene(self.data, camera=cam, scene_option=opt)
+        scene = r.scene
+        for g in scene.geoms[: scene.ngeom]:  # see-through containers (the only meshes)
+            if g.type == mujoco.mjtGeom.mjGEOM_MESH:
+                g.rgba[3] = 0.35
+        x = self.solver.positions()
+        rad = np.array([0.5 * self.solver_config.spacing, 0.0, 0.0])
+        eye = np.eye(3).ravel()
+        rgba = np.array([0.2, 0.45, 0.9, 1.0], np.float32)
+        for p in x[np.isfinite(x).all(1)][: scene.maxgeom - scene.ngeom]:
+            mujoco.mjv_initGeom(
+                scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE, rad, p.astype(float),
+                eye, rgba,
+            )  # fmt: skip
+            scene.ngeom += 1
+        return r.render()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
 
     # ------------------------------------------------------------------ read
 
