@@ -202,6 +202,19 @@ def test_movo_left_wrist_reads_the_tray_and_not_the_gripper() -> None:
     assert info["measured_g"] == 0.0
 
 
+def test_movo_right_wrist_feels_the_cup_and_its_liquid() -> None:
+    """The liquid's reaction on the cup enters MuJoCo: after 2 s at rest the right wrist's
+    compensated load is the cup (90 g) plus the liquid in it."""
+    env = RobotPourEnv(robot="movo", liquid="water")
+    env.reset(seed=0, options={"target_g": 100.0})
+    assert env.pouring_wrist_g() == pytest.approx(90.0, abs=0.1)  # no liquid force yet
+    for _ in range(20):
+        env.step(np.zeros(2))
+    assert env.pouring_wrist_g() == pytest.approx(90.0 + env.initial_g, abs=3.0)
+    with pytest.raises(InvalidParameterError, match="'panda' has no wrist"):
+        RobotPourEnv(robot="panda").pouring_wrist_g()
+
+
 def _pd_pour(robot: str, planner: str, seed: int, target: float) -> dict:
     env = RobotPourEnv(robot=robot, planner=planner, liquid="water")
     obs, info = env.reset(seed=seed, options={"target_g": target})

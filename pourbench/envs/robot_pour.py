@@ -642,6 +642,22 @@ class RobotPourEnv(gym.Env):
             f, _ = gravity_compensate(f, t, rot)
         return float(vertical_load(f, rot)[0])
 
+    def pouring_wrist_g(self) -> float:
+        """The Movo's right wrist F/T, gravity-compensated, as a vertical load in g: the cup
+        and the liquid it holds (the liquid's reaction enters MuJoCo through the coupling).
+
+        Raises:
+            InvalidParameterError: the robot is not the Movo (the Panda has no wrist sensor).
+        """
+        if self.robot != "movo":
+            raise InvalidParameterError(f"robot {self.robot!r} has no wrist F/T sensor")
+        d, m = self.data, self.model
+        f = d.sensor("right_ft_force").data.copy()[None]
+        t = d.sensor("right_ft_torque").data.copy()[None]
+        rot = d.site_xmat[m.site("right_ft").id].reshape(1, 3, 3)
+        comp, _ = gravity_compensate(f, t, rot)
+        return float(vertical_load(comp, rot)[0] / GRAVITY * 1e3)
+
     def weight_g_true(self) -> float:
         """Noise-free, unfiltered, tared weight reading after the last step, g."""
         return (self.force_n - self.filter.tare_n[0]) / GRAVITY * 1e3
