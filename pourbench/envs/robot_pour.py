@@ -34,13 +34,13 @@ Robots:
   same noise and filter).
 
 Safety: the planner keeps its hard clearance (``safety_distance``) between the pouring arm's
-collision capsules and the robot's body boxes, the other arm, the table and the receiving
-container. The episode ends (terminated) with ``info["collided"]`` when MuJoCo reports a
-contact (arm and table, container and table, container and container) or the containers
-overlap, or the pouring arm, its gripper or the cup overlaps the rest of the robot (robot
-links make no MuJoCo contacts with each other), and with ``info["planner_failed"]`` when
-the end-effector is further than ``max_pos_error`` / ``max_rot_error`` from the step's target
-after the step, or the planner's QP fails.
+collision capsules plus a capsule around the held cup, and the robot's body boxes, the other
+arm, the table and the receiving container. The episode ends (terminated) with
+``info["collided"]`` when MuJoCo reports a contact (arm and table, container and table,
+container and container) or the containers overlap, or the pouring arm, its gripper or the
+cup overlaps the rest of the robot (robot links make no MuJoCo contacts with each other),
+and with ``info["planner_failed"]`` when the end-effector is further than ``max_pos_error``
+/ ``max_rot_error`` from the step's target after the step, or the planner's QP fails.
 
 Batching: this first version runs one world (``num_envs=1``). The task's per-world state
 (handler state, filter, history, accounting, observation) is kept in ``(1, …)`` arrays and
@@ -102,6 +102,8 @@ from pourbench.planners.rollout import rotation_error
 from pourbench.scene import ROBOTS, STATIC_CONTYPE, body_clearance, build_pour_scene
 
 PLANNERS: tuple[str, ...] = ("nmpc", "mink")
+CUP_CAPSULE = "pouring_col"
+"""The planner's collision capsule of the held cup (geom group 3, no MuJoCo contacts)."""
 EE_SITE = "pouring_rim"
 # task frame -> world: task x (toward the receiving container) is world +y
 _TASK_R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -144,6 +146,23 @@ class RobotSettings:
             raise InvalidParameterError(
                 f"nmpc_max_iter must be an integer >= 1, got {self.nmpc_max_iter!r}"
             )
+
+
+def _add_cup_capsule(spec: mujoco.MjSpec, cup: object) -> None:
+    """Give the pouring container a planner capsule: its axis from base to rim, radius its
+    outer radius (a conservative cover, as the arms' capsules are)."""
+    r = 0.5 * cup.diameter  # type: ignore[attr-defined]
+    spec.body("pouring").add_geom(
+        name=CUP_CAPSULE,
+        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+        fromto=[0.0, 0.0, 0.0, 0.0, 0.0, cup.rim_height],  # type: ignore[attr-defined]
+        size=[r, 0.0, 0.0],
+        contype=0,
+        conaffinity=0,
+        group=3,
+        mass=0.0,
+        rgba=[0.2, 0.4, 1.0, 0.25],
+    )
 
 
 def _axis_quat(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -231,14 +250,18 @@ class RobotPourEnv(gym.Env):
         self.control_dt = self.substeps * scfg.dt
         # --- MuJoCo
         self.scene = build_pour_scene(self.container, cfg.receiving, robot)
-        self.model = self.scene.model
+        _add_cup_capsule(self.scene.spec, self.pour)
+        self.model = self.scene.spec.compile()
         self.model.opt.timestep = scfg.dt
-        self.data = self.scene.make_data()
+        self.data = mujoco.MjData(self.model)
+        mujoco.mj_resetDataKeyframe(self.model, self.data, self.model.key("home").id)
+        mujoco.mj_forward(self.model, self.data)
         self.home_qpos = self.data.qpos.copy()
         m = self.model
         arm = arm_spec("movo" if robot == "movo" else "panda")
         self.arm = arm
-        self.kin = ArmKinematics(m, arm.joints, EE_SITE, arm.capsules, base_qpos=self.home_qpos)
+        self.capsules = (*arm.capsules, CUP_CAPSULE)
+        self.kin = ArmKinematics(m, arm.joints, EE_SITE, self.capsules, base_qpos=self.home_qpos)
         jids = [m.joint(j).id for j in arm.joints]
         self.act_ids = np.array(
             [a for j in jids for a in range(m.nu) if m.actuator_trnid[a, 0] == j], int
@@ -274,9 +297,10 @@ class RobotPourEnv(gym.Env):
         else:
             statics = (*arm.body_boxes, *arm.other_capsules)
             pw_spec = build_pour_scene(self.container, cfg.receiving, robot).spec
-            world = PlanningWorld(pw_spec, arm.capsules, self._dynamic_obstacles(), statics)
+            _add_cup_capsule(pw_spec, self.pour)
+            world = PlanningWorld(pw_spec, self.capsules, self._dynamic_obstacles(), statics)
             self.planner = MinkController(
-                world, arm.joints, EE_SITE, arm.capsules, ts=ts,
+                world, arm.joints, EE_SITE, self.capsules, ts=ts,
                 safety_distance=self.settings.safety_distance, max_joint_speed=self.vmax,
                 base_qpos=self.home_qpos,
             )  # fmt: skip
