@@ -126,6 +126,20 @@ def test_planner_tracks_the_handler_target_once_settled(robot: str, planner: str
     assert worst < 0.03  # while moving at the handler's full speed, too
 
 
+def test_the_planner_runs_at_10_hz_or_faster_whatever_the_control_rate() -> None:
+    """At 2 Hz (0.5 s steps) the planner is called five times a step, toward targets
+    interpolated along the handler's motion, and still tracks it."""
+    assert RobotPourEnv().plan_dt == pytest.approx(0.1)  # 10 Hz: once a step
+    env = RobotPourEnv(robot="panda", liquid="water", control_hz=2.0)
+    assert (env.plans, env.plan_dt) == (5, pytest.approx(0.1))
+    env.reset(seed=0, options={"start": [-0.22, 0.0, 0.12], "target_g": 100.0})
+    for a in [(0.0, 1.0)] * 3 + [(0.5, 0.0)] * 2 + [(0.0, 0.0)] * 3:
+        obs, _, term, trunc, info = env.step(np.array(a))
+        assert not (term or trunc), info
+    assert obs[11] == pytest.approx(2 * 0.5 * 0.8 * 0.5)  # two 0.5 s steps at 0.4 rad/s
+    assert info["pos_error_m"] <= 0.01 and info["rot_error_rad"] <= np.radians(2.0)
+
+
 @pytest.mark.parametrize(("robot", "planner"), COMBOS)
 def test_driving_the_container_into_the_tray_wall_ends_the_episode(robot, planner) -> None:
     """Algorithm 4 approaches horizontally from a start whose base is below the tray's rim:
