@@ -553,10 +553,11 @@ class RobotPourEnv(gym.Env):
         per_plan = self.substeps // self.plans
         for k in range(1, self.plans + 1):  # the planner at >= 10 Hz, targets interpolated
             f = k / self.plans
-            goal_p, goal_q = self._to_world(
-                self.base[0] + f * (new_base[0] - self.base[0]),
-                float(self.tilt[0] + f * (new_tilt[0] - self.tilt[0])),
-            )
+            base = self.base[0] + f * (new_base[0] - self.base[0])
+            tilt = self.tilt[0] + f * (new_tilt[0] - self.tilt[0])
+            if k == self.plans:  # exactly the handler's target (a + (b - a) may miss b)
+                base, tilt = new_base[0], new_tilt[0]
+            goal_p, goal_q = self._to_world(base, float(tilt))
             q0 = d.qpos[self.kin.qadr].copy()
             res = self.planner.plan(q0, goal_p, goal_q, self.plan_obstacles)
             self.planner_time_s += float(res.solve_time_s)  # wall time: kept out of info
