@@ -78,9 +78,13 @@ def test_bad_actions_and_targets_are_refused_naming_the_value() -> None:
         env.reset(options={"container": "bottle"})
     with pytest.raises(InvalidParameterError, match=r"out of the panda's reach"):
         env.reset(options={"start": [-0.25, 0.0, 2.0]})
-    # a refused step changed nothing: the episode goes on
-    env.reset(seed=0, options={"target_g": 100.0})
-    env.step(np.zeros(2))
+    with pytest.raises(InvalidParameterError, match=r"start must be three.*'abc'"):
+        env.reset(options={"start": "abc"})
+    # refused steps and resets changed nothing: the episode goes on where it was
+    q = env.data.qpos[env.kin.qadr].copy()
+    _, _, term, trunc, info = env.step(np.zeros(2))
+    assert not (term or trunc or info["planner_failed"])
+    np.testing.assert_allclose(env.data.qpos[env.kin.qadr], q, atol=5e-3)  # held, not reset
 
 
 def _run(env: RobotPourEnv, seed: int, actions: np.ndarray) -> tuple[np.ndarray, list]:

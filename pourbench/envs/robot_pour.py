@@ -450,15 +450,17 @@ class RobotPourEnv(gym.Env):
                 rng.uniform(*cfg.start_y),
                 rng.uniform(*cfg.start_height),
             ]
-        start = np.asarray(start, float)
+        try:
+            start = np.asarray(start, float)
+        except (TypeError, ValueError):
+            start = np.full(1, np.nan)  # refused just below
         if start.shape != (3,) or not np.all(np.isfinite(start)):
             raise InvalidParameterError(
                 f"start must be three finite numbers (x, y, height of the pouring container's "
                 f"base relative to the receiving container's, m), got {opts.get('start')!r}"
             )
-        # the robot at home, the pouring arm moved to the start by IK
-        d, m = self.data, self.model
-        mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
+        # the robot at home, the pouring arm moved to the start by IK (checked before any
+        # state changes: a refused reset leaves the episode as it was)
         goal_p, goal_q = self._to_world(start, 0.0)
         q, err = self._ik(self.kin.home(), goal_p, goal_q)
         if err > 2e-3:
@@ -466,6 +468,8 @@ class RobotPourEnv(gym.Env):
                 f"start {start.tolist()} is out of the {self.robot}'s reach (IK error "
                 f"{err * 1e3:.1f} mm)"
             )
+        d, m = self.data, self.model
+        mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
         d.qpos[self.kin.qadr] = q
         d.act[self.act_adr] = q
         d.qvel[:] = 0.0
