@@ -299,3 +299,27 @@ def dam_break_fronts(
         front = np.quantile(x[low, 0], 0.995) + tank.half_x + spacing / 2
         out[T] = float(front / a)
     return out
+
+
+def free_drop(
+    liquid: str = "water", times: Sequence[float] = (0.25, 0.5, 1.0), device: str = "cpu"
+) -> list[float]:
+    """An 8 × 8 × 8 cube of ``liquid`` at rest spacing released in zero gravity, no walls: its
+    rms radius (about its centre of mass, over the radius of a ball of its volume) at the
+    start and at each of ``times`` (s, increasing)."""
+    cfg = SolverConfig(reorder_every=0, gravity=(0.0, 0.0, 0.0), device=device)
+    g = (np.arange(8) - 3.5) * cfg.spacing
+    cube = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    ball = (len(cube) * cfg.spacing**3 * 3.0 / (4.0 * math.pi)) ** (1.0 / 3.0)
+    s = PBFSolver(1, cfg)
+    s.set_liquid(0, liquid)
+    s.add_particles(0, cube)
+
+    def rms(x: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.sum((x - x.mean(0)) ** 2, axis=1)))) / ball
+
+    radii = [rms(cube)]
+    for t in times:
+        s.step(round((t - s.time) / cfg.dt))
+        radii.append(rms(s.positions()))
+    return radii
