@@ -1,4 +1,5 @@
-"""Shared test configuration: GPU tests are skipped without CUDA."""
+"""Shared test configuration: GPU tests are skipped without CUDA; training tests run torch on
+one thread."""
 
 from __future__ import annotations
 
@@ -13,3 +14,15 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         for item in items:
             if "gpu" in item.keywords:
                 item.add_marker(skip)
+
+
+@pytest.fixture
+def one_torch_thread():
+    """One torch thread, as training uses: on a loaded 2-core machine torch's default
+    threads make tiny updates 40x slower."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

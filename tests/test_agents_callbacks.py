@@ -7,7 +7,6 @@ import itertools
 import time
 
 import pytest
-import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import DummyVecEnv
 from toy_envs import Toy
@@ -15,15 +14,7 @@ from toy_envs import Toy
 from pourbench.agents.callbacks import BudgetCallback
 from pourbench.agents.plots import plot_training, read_progress
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """One torch thread, as training uses: on a loaded 2-core machine torch's default
-    threads make these tiny updates 40x slower."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_a_wall_clock_budget_stops_training_and_checkpoints() -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
@@ -14,15 +13,7 @@ from toy_envs import Toy
 from pourbench.agents.schedule import CurriculumCallback, step_progress
 from pourbench.envs.curriculum import load_curriculum
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """One torch thread, as training uses: on a loaded 2-core machine torch's default
-    threads make these tiny updates 40x slower."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_lessons_switch_at_a_quarter_and_a_half_of_the_steps() -> None:

@@ -13,15 +13,7 @@ from toy_envs import Toy
 
 from pourbench.agents.icm import ICMConfig, ICMTrainer, ICMVecEnv
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """One torch thread, as training uses: on a loaded 2-core machine torch's default
-    threads make these tiny updates 40x slower."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_icm_losses_fall_on_a_fixed_set_of_transitions() -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 from stable_baselines3 import SAC
 
 from pourbench.agents import load_policy
@@ -13,15 +12,7 @@ from pourbench.agents.pd import PDConfig, PDPourer
 from pourbench.agents.sb3 import SB3PourVecEnv
 from pourbench.cli import main
 
-
-@pytest.fixture(autouse=True)
-def _one_torch_thread():
-    """One torch thread, as training uses: on a loaded 2-core machine torch's default
-    threads make these tiny updates 40x slower."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _observations(n: int) -> np.ndarray:
