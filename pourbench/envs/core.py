@@ -57,6 +57,30 @@ from pourbench.fluids.metrics import count_liquid
 from pourbench.fluids.solver import container_lattice
 from pourbench.scene import TABLE_HALF_XY, TABLE_HEIGHT, body_clearance, build_pour_scene
 
+
+def liquid_account(
+    inside: np.ndarray,
+    spilled: np.ndarray,
+    flight: np.ndarray,
+    particle_g: np.ndarray,
+    initial_g: np.ndarray,
+    target_g: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """Per-world grams from :func:`pourbench.fluids.metrics.count_liquid`'s particle counts
+    (``inside``: (n, 2), the pouring then the receiving container): poured, spilled,
+    remaining, in flight, the episode's initial and target grams and |poured − target|."""
+    poured = inside[:, 1] * particle_g
+    return {
+        "poured_g": poured,
+        "spilled_g": spilled * particle_g,
+        "remaining_g": inside[:, 0] * particle_g,
+        "in_flight_g": flight * particle_g,
+        "initial_g": np.array(initial_g, dtype=float, copy=True),
+        "target_g": np.array(target_g, dtype=float, copy=True),
+        "error_g": np.abs(poured - target_g),
+    }
+
+
 CONTAINER_SETS: tuple[str, ...] = ("training", "novel")
 OBS_SIZE = 12
 _PARK = np.array([0.0, 0.0, -5.0])  # unused pouring containers wait here
@@ -636,19 +660,10 @@ class PourBatch:
         poses[:, 0] = self.pouring_poses()
         poses[:, 1] = self.recv_pose
         shape_index = np.stack([self.cidx, np.full(self.n, len(self._shapes) - 1)], 1)
-        inside, spilled, flight = count_liquid(
+        counts = count_liquid(
             x, owner, self.n, poses, shape_index, self._shapes, self.solver_config.spacing
         )
-        g = self.particle_g
-        out = {
-            "poured_g": inside[:, 1] * g,
-            "spilled_g": spilled * g,
-            "remaining_g": inside[:, 0] * g,
-            "in_flight_g": flight * g,
-            "initial_g": self.initial_g.copy(),
-            "target_g": self.target_g.copy(),
-        }
-        out["error_g"] = np.abs(out["poured_g"] - out["target_g"])
+        out = liquid_account(*counts, self.particle_g, self.initial_g, self.target_g)
         out["measured_g"] = self.filter.value_g.copy()
         out["liquid"] = self.liquid_names.copy()
         out["container"] = self.container_names.copy()

@@ -74,6 +74,7 @@ from pourbench.envs.core import (
     PourConfig,
     _known_liquid,
     default_solver_config,
+    liquid_account,
 )
 from pourbench.envs.curriculum import load_curriculum
 from pourbench.envs.ft_sensor import gravity_compensate, vertical_load
@@ -718,20 +719,11 @@ class RobotPourEnv(gym.Env):
             b = m.body(name).id
             poses[0, k, :3] = d.xpos[b]
             poses[0, k, 3:6], poses[0, k, 6] = d.xquat[b][1:], d.xquat[b][0]
-        inside, spilled, flight = count_liquid(
+        counts = count_liquid(
             self.solver.positions(), self.solver.worlds(), 1, poses, np.array([[0, 1]]),
             self._shapes, self.solver_config.spacing,
         )  # fmt: skip
-        g = self.particle_g
-        out = {
-            "poured_g": inside[:, 1] * g,
-            "spilled_g": spilled * g,
-            "remaining_g": inside[:, 0] * g,
-            "in_flight_g": flight * g,
-            "initial_g": np.array([self.initial_g]),
-            "target_g": self.target_g.copy(),
-        }
-        out["error_g"] = np.abs(out["poured_g"] - out["target_g"])
+        out = liquid_account(*counts, self.particle_g, [self.initial_g], self.target_g)
         out["measured_g"] = self.filter.value_g.copy()
         out["tilt"] = self.tilt.copy()
         out["tilt_measured"] = np.array([self.measured_tilt])
