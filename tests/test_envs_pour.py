@@ -559,7 +559,8 @@ def hold_filled(container_set: str, names: tuple[str, ...], liquids: tuple[str, 
     batch = PourBatch(len(cases), PourConfig(container_set=container_set))
     for w, (name, liq) in enumerate(cases):
         cap = 0.85 * batch.capacity_g(name, liquid_profile(liq).density)
-        opts = {"container": name, "liquid": liq, "initial_g": 0.999 * cap, "target_g": 50.0}
+        # the target only has to be one the container can hold (the spoon holds 3 g)
+        opts = {"container": name, "liquid": liq, "initial_g": 0.999 * cap, "target_g": cap / 2}
         batch.reset_world(w, seed=w, options=opts)
     batch.flush()
     for _ in range(30):  # 3 s of 10 Hz control steps, every action zero: nothing moves
