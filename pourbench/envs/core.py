@@ -81,6 +81,51 @@ def liquid_account(
     }
 
 
+def particle_grams(liquid: LiquidProfile, spacing: float) -> float:
+    """Mass of one particle of ``liquid`` at ``spacing`` (m), g."""
+    return liquid.density * spacing**3 * 1e3
+
+
+def draw_amounts(
+    opts: Mapping,
+    rng: np.random.Generator,
+    cfg: PourConfig,
+    liquid: LiquidProfile,
+    container: str,
+    capacity_g: float,
+    spacing: float,
+) -> tuple[float, float]:
+    """An episode's (target_g, initial_g): from reset ``opts`` or drawn from ``cfg``'s ranges,
+    checked against one particle's mass (at ``spacing``, m) and 85 % of the pouring
+    container's ``capacity_g`` for ``liquid``."""
+    target = opts.get("target_g")
+    if target is None:
+        target = float(rng.uniform(*cfg.target_range_g))
+    target = check_positive("target_g", target)
+    particle_g = particle_grams(liquid, spacing)
+    if target < particle_g:
+        raise InvalidParameterError(
+            f"target_g={target:g} g is less than one particle of {liquid.name} "
+            f"({particle_g:.3g} g at {spacing * 1e3:g} mm spacing)"
+        )
+    cap = 0.85 * capacity_g
+    holds = (
+        f"container {container!r} holds {cap:.0f} g of {liquid.name} at "
+        f"{liquid.density:.0f} kg/m^3 (85 % of its capacity)"
+    )
+    if target > cap:
+        raise CapacityError(f"target_g={target:g} g is more than {holds}")
+    initial = opts.get("initial_g")
+    if initial is None:
+        initial = min(target + float(rng.uniform(*cfg.extra_range_g)), cap)
+    initial = check_finite("initial_g", initial)
+    if initial > cap:
+        raise CapacityError(f"initial_g={initial:g} g is more than {holds}")
+    if initial < target:
+        raise InvalidParameterError(f"initial_g={initial:g} g is less than target_g={target:g} g")
+    return target, initial
+
+
 CONTAINER_SETS: tuple[str, ...] = ("training", "novel")
 OBS_SIZE = 12
 _PARK = np.array([0.0, 0.0, -5.0])  # unused pouring containers wait here
@@ -442,32 +487,10 @@ class PourBatch:
             name = fits[int(rng.integers(len(fits)))]
         elif name not in self.candidates:
             raise UnknownNameError("pouring container", name, self.candidates)
-        # amounts
-        target = opts.get("target_g")
-        if target is None:
-            target = float(rng.uniform(*cfg.target_range_g))
-        target = check_positive("target_g", target)
-        particle_g = liquid.density * self.solver_config.spacing**3 * 1e3
-        if target < particle_g:
-            raise ValueError(
-                f"target_g={target:g} g is less than one particle of {liquid.name} "
-                f"({particle_g:.3g} g at {self.solver_config.spacing * 1e3:g} mm spacing)"
-            )
-        cap = 0.85 * self.capacity_g(name, liquid.density)
-        holds = (
-            f"container {name!r} holds {cap:.0f} g of {liquid.name} at "
-            f"{liquid.density:.0f} kg/m^3 (85 % of its capacity)"
-        )
-        if target > cap:
-            raise CapacityError(f"target_g={target:g} g is more than {holds}")
-        initial = opts.get("initial_g")
-        if initial is None:
-            initial = min(target + float(rng.uniform(*cfg.extra_range_g)), cap)
-        initial = check_finite("initial_g", initial)
-        if initial > cap:
-            raise CapacityError(f"initial_g={initial:g} g is more than {holds}")
-        if initial < target:
-            raise ValueError(f"initial_g={initial:g} g is less than target_g={target:g} g")
+        target, initial = draw_amounts(
+            opts, rng, cfg, liquid, name, self.capacity_g(name, liquid.density),
+            self.solver_config.spacing,
+        )  # fmt: skip
         start = opts.get("start")
         if start is None:
             start = [
@@ -497,7 +520,7 @@ class PourBatch:
         self.started[world] = self.done[world] = False
         self.was_reset[world] = True
         self.target_g[world] = target
-        self.particle_g[world] = particle_g
+        self.particle_g[world] = particle_g = particle_grams(liquid, self.solver_config.spacing)
         self.liquid_obs[world] = [
             liquid.density / 1000.0,
             liquid.cohesion,

@@ -74,7 +74,9 @@ from pourbench.envs.core import (
     PourConfig,
     _known_liquid,
     default_solver_config,
+    draw_amounts,
     liquid_account,
+    particle_grams,
 )
 from pourbench.envs.curriculum import load_curriculum
 from pourbench.envs.ft_sensor import gravity_compensate, vertical_load
@@ -82,7 +84,6 @@ from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
 from pourbench.envs.pour import RENDER_SIZE, action_space, check_settings, observation_space
 from pourbench.envs.reward import ErrorHistory, extrinsic_reward
 from pourbench.errors import (
-    CapacityError,
     InvalidParameterError,
     UnknownNameError,
     check_finite,
@@ -417,33 +418,10 @@ class RobotPourEnv(gym.Env):
             raise UnknownNameError("pouring container", opts["container"], (self.container,))
         liq = opts.get("liquid", cfg.liquid)
         liquid = self.lessons[self.lesson].sample(rng) if liq is None else _known_liquid(liq)
-        cap = 0.85 * self.capacity_g(liquid.density)
-        holds = (
-            f"container {self.container!r} holds {cap:.0f} g of {liquid.name} at "
-            f"{liquid.density:.0f} kg/m^3 (85 % of its capacity)"
-        )
-        target = opts.get("target_g")
-        if target is None:
-            target = float(rng.uniform(*cfg.target_range_g))
-        target = check_positive("target_g", target)
-        particle_g = liquid.density * self.solver_config.spacing**3 * 1e3
-        if target < particle_g:
-            raise InvalidParameterError(
-                f"target_g={target:g} g is less than one particle of {liquid.name} "
-                f"({particle_g:.3g} g)"
-            )
-        if target > cap:
-            raise CapacityError(f"target_g={target:g} g is more than {holds}")
-        initial = opts.get("initial_g")
-        if initial is None:
-            initial = min(target + float(rng.uniform(*cfg.extra_range_g)), cap)
-        initial = check_finite("initial_g", initial)
-        if initial > cap:
-            raise CapacityError(f"initial_g={initial:g} g is more than {holds}")
-        if initial < target:
-            raise InvalidParameterError(
-                f"initial_g={initial:g} g is less than target_g={target:g} g"
-            )
+        target, initial = draw_amounts(
+            opts, rng, cfg, liquid, self.container, self.capacity_g(liquid.density),
+            self.solver_config.spacing,
+        )  # fmt: skip
         start = opts.get("start")
         if start is None:
             start = [
@@ -484,7 +462,7 @@ class RobotPourEnv(gym.Env):
         self.max_tilt = np.zeros(1)
         self.measured_tilt = 0.0
         self.target_g = np.array([target])
-        self.particle_g = particle_g
+        self.particle_g = particle_g = particle_grams(liquid, self.solver_config.spacing)
         self.steps = 0
         self.substep_count = 0
         self.started = False
