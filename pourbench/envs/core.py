@@ -338,7 +338,7 @@ class PourBatch:
         self.recv_slot = np.array([self.coupling.slots[(w, recv_body)] for w in range(self.n)])
         self.recv_pose = np.array(self.solver.colliders[self.recv_col[0]].pose)
         first = get_container(self.candidates[0])
-        self.pour_col = [self.solver.add_container(w, first.shape) for w in range(self.n)]
+        self.pour_col = np.array([self.solver.add_container(w, first.shape) for w in range(self.n)])
         self.filter = WeightFilter(
             self.n, cfg.sensor_rate_hz, cfg.sensor_cutoff_hz, noise_n=cfg.sensor_noise_n
         )
@@ -419,7 +419,7 @@ class PourBatch:
     def _place(self, worlds: list[int] | None = None) -> None:
         """Hand the pouring containers' poses of ``worlds`` (None: all) to the solver in one
         call (it sweeps each collider from its last step's pose to this one)."""
-        cols = self.pour_col if worlds is None else [self.pour_col[w] for w in worlds]
+        cols = self.pour_col if worlds is None else self.pour_col[np.asarray(worlds, int)]
         self.solver.set_collider_poses(cols, self.pouring_poses(worlds))
 
     def world_data(self, world: int) -> mujoco.MjData:

@@ -243,8 +243,11 @@ class SolverConfig:
 class Collider:
     """One signed-distance collider in one world.
 
-    ``pose`` is a 7-vector (x, y, z, qx, qy, qz, qw) in the world frame; the coupling updates
-    it every step. ``body`` is a slot in the solver's reaction-force table, or −1.
+    ``pose`` is a 7-vector (x, y, z, qx, qy, qz, qw) in the world frame and ``com`` the point
+    (world frame, m) its reaction torque is taken about; once the collider is added to a
+    solver both are views of a row of the solver's pose table, which
+    :meth:`PBFSolver.set_collider_poses` writes. ``body`` is a slot in the solver's
+    reaction-force table, or −1.
     """
 
     world: int
@@ -432,6 +435,10 @@ class PBFSolver:
         self._bottom = np.full(self.num_worlds, np.inf, np.float32)
         self._wall_speed = np.zeros(self.num_worlds)
         self._uploaded_poses: np.ndarray | None = None
+        # the colliders' poses and torque centres, one row per collider (index order); each
+        # Collider's pose/com is a view of its row (see _bind_rows)
+        self._pose_table = np.zeros((0, 7))
+        self._com_table = np.zeros((0, 3))
         self._dirty = True
         self._poses_pending = False
         self._host_poses: tuple[np.ndarray, np.ndarray] | None = None  # set by _upload_poses
@@ -501,9 +508,24 @@ class PBFSolver:
         c = Collider(world, KIND_NAMES[kind], arr.astype(np.float32), int(body), wmesh, shape=shape)
         if pose_arr is not None:
             c.pose = pose_arr
-        self.colliders.append(c)
+        self._add_rows(c)
         self._mark_dirty()
         return len(self.colliders) - 1
+
+    def _add_rows(self, c: Collider) -> None:
+        """Append ``c`` to the colliders and its pose and com as the next rows of the pose
+        table; the table doubles when full (rebinding every collider's views), so adding n
+        colliders costs O(n)."""
+        k = len(self.colliders)
+        if k == len(self._pose_table):
+            cap = max(4, 2 * k)
+            self._pose_table = np.concatenate([self._pose_table, np.zeros((cap - k, 7))])
+            self._com_table = np.concatenate([self._com_table, np.zeros((cap - k, 3))])
+            for i, col in enumerate(self.colliders):
+                col.pose, col.com = self._pose_table[i], self._com_table[i]
+        self._pose_table[k], self._com_table[k] = c.pose, c.com
+        c.pose, c.com = self._pose_table[k], self._com_table[k]
+        self.colliders.append(c)
 
     def add_container(
         self, world: int, shape: ContainerShape, pose: np.ndarray | None = None, body: int = -1
@@ -699,7 +721,7 @@ class PBFSolver:
         )
         # colliders, grouped by world
         order = sorted(range(len(self.colliders)), key=lambda i: self.colliders[i].world)
-        self._col_order = order
+        self._col_order = np.array(order, dtype=np.intp)
         cols = [self.colliders[i] for i in order]
         starts, counts, flat = [], [], []
         off = 0
@@ -729,6 +751,8 @@ class PBFSolver:
         self.cols.body = ints([c.body for c in cols])
         self._col_bounds = np.array([_bound(c) for c in cols], float)
         self._col_worlds = np.array([c.world for c in cols], int)
+        # where each world's colliders begin in upload order (for _track_wall_speed)
+        self._world_first_col = np.flatnonzero(np.diff(self._col_worlds, prepend=-1))
         self.cols.bound = wp.array(self._col_bounds, dtype=float, device=dev)
         # reactions summed in integer units of K.WRENCH_UNIT (order-independent sums)
         self.cols.force = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
@@ -757,12 +781,15 @@ class PBFSolver:
         self._dirty = False
 
     def _upload_poses(self, prev_too: bool = False) -> None:
-        """Copy host collider poses to the device as the end-of-step poses (the start-of-step
+        """Copy the pose table to the device as the end-of-step poses (the start-of-step
         ones are the last step's end poses, copied when it finished; with ``prev_too`` both
         are set). Arrays are updated in place, so the recorded kernel launches stay valid."""
-        cols = [self.colliders[i] for i in self._col_order] or [Collider(0, 0, np.zeros(1))]
-        poses = np.array([c.pose for c in cols], np.float32)
-        coms = np.array([c.com for c in cols], np.float32)
+        if len(self._col_order):
+            poses = self._pose_table[self._col_order].astype(np.float32)
+            coms = self._com_table[self._col_order].astype(np.float32)
+        else:  # one placeholder collider that no world owns
+            poses = np.array([[0, 0, 0, 0, 0, 0, 1]], np.float32)
+            coms = np.zeros((1, 3), np.float32)
         last = self._uploaded_poses
         if not prev_too and last is not None and last.shape == (len(self._col_bounds), 7):
             self._track_wall_speed(last, poses)
@@ -783,39 +810,52 @@ class PBFSolver:
         self._poses_pending = False
 
     def _track_wall_speed(self, start: np.ndarray, end: np.ndarray) -> None:
-        """Raise each world's fastest collider surface speed by this step's moves: a
-        collider's origin speed plus its angular speed times its bounding radius."""
+        """Raise each world's fastest collider surface speed (m/s) by this step's moves: a
+        collider's origin speed plus its angular speed times its bounding radius. ``start``
+        and ``end`` are (colliders, 7) poses in upload order (grouped by world)."""
         move = np.linalg.norm(end[:, :3] - start[:, :3], axis=1)
         cos_half = np.clip(np.abs((end[:, 3:] * start[:, 3:]).sum(1)), 0.0, 1.0)
         turn = 2.0 * np.arccos(cos_half) * self._col_bounds
-        np.maximum.at(self._wall_speed, self._col_worlds, (move + turn) / self.config.dt)
+        fastest = np.maximum.reduceat((move + turn) / self.config.dt, self._world_first_col)
+        owners = self._col_worlds[self._world_first_col]
+        self._wall_speed[owners] = np.maximum(self._wall_speed[owners], fastest)
+
+    def _collider_indices(self, indices: object) -> np.ndarray:
+        """``indices`` as an integer array of valid collider indices (an integer numpy array
+        is taken as it is; other sequences element by element)."""
+        if isinstance(indices, np.ndarray) and indices.ndim == 1 and indices.dtype.kind in "iu":
+            idx = indices
+        else:
+            try:
+                idx = np.array([operator.index(i) for i in indices], dtype=np.int64)
+            except TypeError:
+                raise InvalidParameterError(
+                    f"indices must be a list of collider indices, got {indices!r}"
+                ) from None
+        bad = (idx < 0) | (idx >= len(self.colliders))
+        if bad.any():
+            raise InvalidParameterError(
+                f"collider {int(idx[bad][0])} not in [0, {len(self.colliders)})"
+            )
+        return idx
 
     def set_collider_poses(
-        self, indices: list[int], poses: np.ndarray, com: np.ndarray | None = None
+        self, indices: list[int] | np.ndarray, poses: np.ndarray, com: np.ndarray | None = None
     ) -> None:
-        """Set the world poses (n, 7: x y z qx qy qz qw) of colliders ``indices``.
+        """Set the world poses (n, 7: x y z qx qy qz qw; m, unit quaternion) of colliders
+        ``indices``: one write of those rows of the pose table.
 
         Set them before :meth:`step` to the colliders' end-of-step poses (the last call before
         a step counts); the poses they had at the previous step become the start-of-step
-        poses of the swept collision. ``com`` (n, 3) is the point each collider's reaction
-        torque is taken about (its body's CoM).
+        poses of the swept collision. ``com`` (n, 3, m) is the point each collider's reaction
+        torque is taken about (its body's CoM). Everything is checked before anything changes.
         """
-        # checked before anything changes (cheaply: the coupling calls this every step)
-        try:
-            idx = [operator.index(i) for i in indices]
-        except TypeError:
-            raise InvalidParameterError(
-                f"indices must be a list of collider indices, got {indices!r}"
-            ) from None
-        if idx and (min(idx) < 0 or max(idx) >= len(self.colliders)):
-            bad = next(i for i in idx if not 0 <= i < len(self.colliders))
-            raise InvalidParameterError(f"collider {bad} not in [0, {len(self.colliders)})")
+        idx = self._collider_indices(indices)
         arr = check_poses("collider poses", poses, len(idx))
         coms = None if com is None else check_array("com", com, (len(idx), 3))
-        for k, i in enumerate(idx):
-            self.colliders[i].pose = arr[k].copy()
-            if coms is not None:
-                self.colliders[i].com = coms[k].copy()
+        self._pose_table[idx] = arr
+        if coms is not None:
+            self._com_table[idx] = coms
         self._poses_pending = True  # uploaded at the next step, so repeated calls are fine
 
     def set_container_shape(self, collider: int, shape: ContainerShape) -> None:
