@@ -813,8 +813,9 @@ class PBFSolver:
         """Raise each world's fastest collider surface speed (m/s) by this step's moves: a
         collider's origin speed plus its angular speed times its bounding radius. ``start``
         and ``end`` are (colliders, 7) poses in upload order (grouped by world)."""
-        move = np.linalg.norm(end[:, :3] - start[:, :3], axis=1)
-        cos_half = np.clip(np.abs((end[:, 3:] * start[:, 3:]).sum(1)), 0.0, 1.0)
+        d = end[:, :3] - start[:, :3]
+        move = np.sqrt(np.einsum("ij,ij->i", d, d))
+        cos_half = np.minimum(np.abs(np.einsum("ij,ij->i", end[:, 3:], start[:, 3:])), 1.0)
         turn = 2.0 * np.arccos(cos_half) * self._col_bounds
         fastest = np.maximum.reduceat((move + turn) / self.config.dt, self._world_first_col)
         owners = self._col_worlds[self._world_first_col]
@@ -927,17 +928,17 @@ class PBFSolver:
 
     def _step_once(self) -> None:
         cfg, n = self.config, self.n
+        # on CUDA the step's sorts allocate scratch memory, which a graph holds only from a pool
+        graphs = cfg.graph and (self.device.is_cpu or wp.is_mempool_enabled(self.device))
         if self._poses_pending:
             self._upload_poses()
         if n > 0 and cfg.reorder_every > 0 and self.steps % cfg.reorder_every == 0:
-            self._reorder()
+            self._run("reorder", self._reorder, graphs)
         if n > 0 and self.steps % OVERFLOW_CHECK_EVERY == 1:
             self._check_list_capacity()
         if n == 0:
             self._advance_clock()
             return
-        # on CUDA the step's sorts allocate scratch memory, which a graph holds only from a pool
-        graphs = cfg.graph and (self.device.is_cpu or wp.is_mempool_enabled(self.device))
         self._run("start", self._step_start, graphs)
         for _ in range(cfg.max_iterations - cfg.iterations):
             if not self.any_active.numpy()[0]:  # on CUDA a 4-byte read-back
