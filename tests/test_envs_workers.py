@@ -1,6 +1,6 @@
 """The vector env's worker processes: world k gives the same numbers for any number of
-workers (and those of the single env with seed + k, autoresets included), a dead worker
-raises in the parent, close ends every worker."""
+workers (and those of the single env with seed + k: observations, rewards, flags and info,
+autoresets included), a dead worker raises in the parent, close ends every worker."""
 
 from __future__ import annotations
 
@@ -52,6 +52,14 @@ def _assert_same(a: object, b: object) -> None:
         np.testing.assert_array_equal(a, b)
 
 
+def _assert_world_info(vector_info: dict, k: int, info: dict) -> None:
+    """World ``k``'s entries of a vector env's info are the single env's ``info``, bit for
+    bit (an autoreset step carries the reset's info, as the single env's reset returns)."""
+    for key, value in info.items():
+        assert vector_info[f"_{key}"][k], key
+        assert vector_info[key][k] == value, (key, vector_info[key][k], value)
+
+
 @pytest.mark.parametrize("mode", ["next_step", "same_step"])
 def test_world_k_is_the_same_for_any_number_of_workers(mode: str) -> None:
     actions = np.random.default_rng(0).uniform(-1, 1, (STEPS, N, 2))
@@ -64,18 +72,20 @@ def test_world_k_is_the_same_for_any_number_of_workers(mode: str) -> None:
     # ... and world k is the single env given seed + k, through its autoresets
     k = N - 1
     env = PourEnv(max_steps=MAX_STEPS)
-    obs, _ = env.reset(seed=SEED + k, options={"start": ABOVE})
+    obs, info = env.reset(seed=SEED + k, options={"start": ABOVE})
     np.testing.assert_array_equal(obs, one[0][0][k])
+    _assert_world_info(one[0][1], k, info)
     done = False
     for t in range(STEPS):
         if done:  # next-step autoreset: the vector env resets the world, ignoring the action
-            obs, _ = env.reset()
-            rew, done = 0.0, False
+            obs, info = env.reset()
+            rew, term, trunc, done = 0.0, False, False, False
         else:
-            obs, rew, term, trunc, _ = env.step(actions[t, k])
+            obs, rew, term, trunc, info = env.step(actions[t, k])
             done = term or trunc
         np.testing.assert_array_equal(obs, one[t + 1][0][k])
-        assert rew == one[t + 1][1][k]
+        assert (rew, term, trunc) == (one[t + 1][1][k], one[t + 1][2][k], one[t + 1][3][k])
+        _assert_world_info(one[t + 1][4], k, info)
     # the same liquid (the particles' storage order follows the solver's re-sort schedule,
     # which counts the steps the vector env's world held still before its autoresets)
     x, y = env.unwrapped.batch.solver.positions(), one[-1]

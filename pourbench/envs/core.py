@@ -709,6 +709,16 @@ class PourBatch:
         obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
         return np.clip(obs, -OBS_BOUND, OBS_BOUND).astype(np.float32)
 
+    def reset_info(self) -> dict[str, np.ndarray]:
+        """Every world's info as a reset leaves it: its measurements (:meth:`measure`), no
+        flag raised, and the average error of its episodes so far, g (the keys and order of a
+        step's info)."""
+        info = self.measure()
+        for key in ("collided", "sim_diverged", "is_success"):
+            info[key] = np.zeros(self.n, bool)
+        info["average_error_g"] = self.history.average()
+        return info
+
     def weight_g_true(self, world: int) -> float:
         """Unfiltered, noise-free tared scale reading of ``world`` after its last step, g."""
         w = check_index("world", world, self.n)

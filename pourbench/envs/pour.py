@@ -139,9 +139,7 @@ class PourEnv(gym.Env):
         super().reset(seed=seed)
         self.batch.reset_world(0, seed=seed, options=options)
         self.batch.flush()
-        info = _world_info(self.batch.measure(), 0)
-        info.update(collided=False, sim_diverged=False, is_success=False)
-        info["average_error_g"] = float(self.batch.history.average()[0])
+        info = _world_info(self.batch.reset_info(), 0)
         if self._recorder is not None:
             self._recorder.log()
         return self.batch.observe()[0], info

@@ -31,7 +31,6 @@ import numpy as np
 
 from pourbench.envs.core import PourBatch, PourConfig
 
-INFO_FLAGS = ("collided", "sim_diverged", "is_success")
 _START_TIMEOUT_S = 600.0  # a worker that has not built its worlds by then is stopped
 _CLOSE_TIMEOUT_S = 10.0
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -58,11 +57,11 @@ class WorldGroup:
         self, seeds: list[int | None], mask: np.ndarray, options: dict[str, Any]
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Reset the worlds in ``mask`` (seed ``seeds[k]``, the other ``options``); every
-        world's observation and measurements."""
+        world's observation and info (:meth:`PourBatch.reset_info`)."""
         for k in np.flatnonzero(mask):
             self.batch.reset_world(int(k), seeds[k], options)
         self.batch.flush()
-        return self.batch.observe(), self.batch.measure()
+        return self.batch.observe(), self.batch.reset_info()
 
     def step(
         self, actions: np.ndarray, resetting: np.ndarray, same_step: bool
@@ -88,11 +87,8 @@ class WorldGroup:
                 b.reset_world(int(k))
             b.flush()
             obs = b.observe()
-            fresh = b.measure()
-            for key, v in fresh.items():
+            for key, v in b.reset_info().items():
                 info[key] = np.where(resetting, v, info[key])
-            for key in INFO_FLAGS:
-                info[key] = info[key] & ~resetting
         rew = np.where(resetting, 0.0, rew)
         term, trunc = term & ~resetting, trunc & ~resetting
         done = term | trunc
