@@ -179,3 +179,22 @@ def test_pourbench_errors_pickle_as_themselves() -> None:
     for exc in (UnknownNameError("liquid", "mercury", ["water"]), ProfileFileError("a", "k", "x")):
         back = pickle.loads(pickle.dumps(exc))
         assert type(back) is type(exc) and str(back) == str(exc)
+
+
+def test_the_step_profile_accounts_for_the_whole_step_and_unwraps() -> None:
+    """``python -m pourbench.bench.env_profile``: the parts add up to the step's wall time,
+    the kernels are most of it, every launch of a step is counted, and the timers are gone
+    afterwards."""
+    import warp as wp
+
+    from pourbench.bench import env_profile
+    from pourbench.fluids.solver import PBFSolver
+
+    launch, capture_launch = PBFSolver._launch, wp.capture_launch
+    parts, facts = env_profile.step_parts(1, 3)
+    assert sum(parts.values()) == pytest.approx(facts["ms_per_env_step"], rel=1e-6)
+    assert parts["solver kernels (graph replays)"] > 0.5 * facts["ms_per_env_step"]
+    kernels = env_profile.kernel_times(1, 2)
+    assert kernels["predict"][1] == kernels["collide"][1] == 12.0  # once a substep
+    assert kernels["density_sums"][1] == 36.0  # three iterations a substep
+    assert PBFSolver._launch is launch and wp.capture_launch is capture_launch
