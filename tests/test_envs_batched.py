@@ -1,5 +1,6 @@
 """Pour-v0's batched step: the scale reading from the solver's reaction, the collision check
-over all worlds, the per-world noise and the memory check before allocation."""
+over all worlds, the per-world noise, the memory check before allocation and the solver's
+pose table."""
 
 from __future__ import annotations
 
@@ -100,3 +101,34 @@ def test_sb3_env_checker() -> None:
     from stable_baselines3.common.env_checker import check_env
 
     check_env(PourEnv(max_steps=10), warn=True)
+
+
+def test_collider_poses_are_rows_of_one_table_written_by_index() -> None:
+    """``set_collider_poses`` writes rows of the solver's pose table (an index array or a
+    list), each collider's ``pose``/``com`` reads its row (also after the table grew), the
+    device gets the rows in its collider order, and a bad index changes nothing."""
+    from pourbench.errors import InvalidParameterError
+    from pourbench.fluids.shapes import BoxShell
+    from pourbench.fluids.solver import PBFSolver
+
+    s = PBFSolver(3)
+    for w in (2, 0, 1):  # added out of world order: the device groups them by world
+        for _ in range(3):  # 9 colliders: the table grows twice
+            s.add_container(w, BoxShell(0.02, 0.02, 0.05, 0.005))
+    s.fill(0, 3, 5.0)
+    poses = np.tile([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], (9, 1))
+    poses[:, 0] = np.arange(9) * 0.01
+    s.set_collider_poses(np.arange(9)[::-1], poses[::-1], com=poses[::-1, :3])
+    s.set_collider_poses([4], poses[[4]] + [0, 0, 0.5, 0, 0, 0, 0])
+    expected = poses.copy()
+    expected[4, 2] = 0.5
+    for i, c in enumerate(s.colliders):
+        np.testing.assert_array_equal(c.pose, expected[i])
+        np.testing.assert_array_equal(c.com, poses[i, :3])
+    with pytest.raises(InvalidParameterError, match=r"collider 9 not in \[0, 9\)"):
+        s.set_collider_poses(np.array([0, 9]), poses[:2] + 1.0)
+    np.testing.assert_array_equal([c.pose for c in s.colliders], expected)
+    s.step()
+    device = s.cols.pose.numpy()
+    order = [3, 4, 5, 6, 7, 8, 0, 1, 2]  # worlds 0, 1, 2
+    np.testing.assert_array_equal(device, expected[order].astype(np.float32))
