@@ -436,7 +436,7 @@ class PBFSolver:
         self._wall_speed = np.zeros(self.num_worlds)
         self._uploaded_poses: np.ndarray | None = None
         # the colliders' poses and torque centres, one row per collider (index order); each
-        # Collider's pose/com is a view of its row (see _bind_rows)
+        # Collider's pose/com is a view of its row (see _add_rows)
         self._pose_table = np.zeros((0, 7))
         self._com_table = np.zeros((0, 3))
         self._dirty = True
