@@ -362,36 +362,49 @@ def gather_state(
 
 
 @wp.func
-def wall_sum(d: float, h: float, coef: float) -> wp.vec2:
+def wall_sum(d: float, kappa: float, h: float, coef: float) -> wp.vec2:
     """Kernel sum (spiky, without its constant) of the rest liquid a wall at distance ``d``
     replaces, and its derivative in ``d``.
 
-    The solid beyond the wall is counted as liquid at the rest number density: the kernel
-    integrated over the half-space, (2π/s³) ∫_d^h (h − r)³ r (r − d) dr = (2π/s³) a⁵ (h/20 −
-    a/30) with a = h − d. ``coef`` (:func:`pourbench.fluids.solver._wall_coef`) is 2π/s³
-    scaled so that at d = s/2 the term equals what a cubic lattice's missing half holds,
-    times ``rest_packing``: the continuum overcounts a lattice's nearest neighbours."""
-    a = h - wp.clamp(d, 0.0, h)
+    The solid beyond the wall is counted as liquid at the rest number density, over a sphere
+    of the wall's mean curvature ``kappa`` (1/m, > 0 where the solid is convex, 0 for a
+    plane) that touches the wall's nearest point. A shell of radius r about the particle
+    holds π r (r − d)(2 − κ(r − d))/(1 + κd) of such a solid (2π r (r − d) of a half-space),
+    so the sum is (2π/s³) [a⁵ (h/20 − a/30) − (κ/2) a⁶ (h/60 − a/105)] / (1 + κd) with
+    a = h − d: exact for a sphere or a spherical cavity, to first order in κ for other
+    smooth walls. ``kappa`` must lie in [−1/(2h), 2/h] (see :func:`wall_curvature`), where
+    every shell's share stays within [0, 1] and 1 + κd at least 1/2. ``coef``
+    (:func:`pourbench.fluids.solver._wall_coef`) is 2π/s³ scaled so that at d = s/2 a plane
+    wall's term equals what a cubic lattice's missing half holds, times ``rest_packing``: the
+    continuum overcounts a lattice's nearest neighbours."""
+    dc = wp.clamp(d, 0.0, h)
+    a = h - dc
     a4 = a * a * a * a
-    return wp.vec2(coef * a4 * a * (h / 20.0 - a / 30.0), -coef * (h * a4 / 4.0 - a4 * a / 5.0))
+    if kappa == 0.0:
+        return wp.vec2(coef * a4 * a * (h / 20.0 - a / 30.0), -coef * (h * a4 / 4.0 - a4 * a / 5.0))
+    half_k = 0.5 * kappa
+    top = a4 * a * (h / 20.0 - a / 30.0) - half_k * a4 * a * a * (h / 60.0 - a / 105.0)
+    dtop = -(a4 * (h / 4.0 - a / 5.0) - half_k * a4 * a * (h / 10.0 - a / 15.0))
+    inv = 1.0 / (1.0 + kappa * dc)
+    return wp.vec2(coef * top * inv, coef * (dtop - top * kappa * inv) * inv)
 
 
 @wp.func
-def wall_distance(wall: wp.vec4, pi: wp.vec3) -> float:
-    """Distance of ``pi`` from a particle's wall plane (n, offset): n · p − offset."""
+def wall_distance(wall: vec5, pi: wp.vec3) -> float:
+    """Distance of ``pi`` from a particle's wall plane (n, offset, κ): n · p − offset."""
     return wp.dot(wp.vec3(wall[0], wall[1], wall[2]), pi) - wall[3]
 
 
 @wp.func
 def density_and_lambda(
-    a: vec5, h: float, w0: float, eps: float, wall: wp.vec4, pi: wp.vec3, wall_coef: float
+    a: vec5, h: float, w0: float, eps: float, wall: vec5, pi: wp.vec3, wall_coef: float
 ) -> wp.vec2:
     """(ρ_i/ρ0, λ_i) from a particle's density sums ``a``: λ_i = −C_i / (Σ|∇C|² + ε) of the
     unilateral density constraint. The nearest wall (``wall``: its plane, see
     :func:`predict`) adds the kernel sum of the liquid its solid replaces (:func:`wall_sum`)
     and that sum's gradient to ∇_i C_i; the wall has no constraint of its own, so it adds no
     |∇_wall C|² term."""
-    ws = wall_sum(wall_distance(wall, pi), h, wall_coef)
+    ws = wall_sum(wall_distance(wall, pi), wall[4], h, wall_coef)
     grad_i = wp.vec3(a[0], a[1], a[2]) + wp.vec3(wall[0], wall[1], wall[2]) * (ws[1] / w0)
     rho = (a[3] + spiky(0.0, h) + ws[0]) / w0
     c = wp.max(rho - 1.0, 0.0)  # unilateral: a free surface is not pulled together
@@ -410,7 +423,7 @@ def record_worst(worst: wp.array(dtype=float), w: int, rho: float):
 def compute_lambda(
     sums: wp.array(dtype=vec5),
     p: wp.array(dtype=wp.vec3),
-    wall: wp.array(dtype=wp.vec4),
+    wall: wp.array(dtype=vec5),
     wall_coef: float,
     h: float,
     w0: float,
@@ -657,7 +670,7 @@ def pair_kernels(half: bool) -> PairKernels:
         scorr: wp.vec4,
         w0: float,
         eps: float,
-        wall: wp.array(dtype=wp.vec4),
+        wall: wp.array(dtype=vec5),
         wall_coef: float,
         world: wp.array(dtype=wp.int32),
         active: wp.array(dtype=wp.int32),
@@ -1138,8 +1151,40 @@ CLEAR_MARGIN = wp.constant(1.0e-6)
 float rounding of a local point (~1e-8 m a metre from the origin)."""
 
 
-NO_WALL = wp.constant(wp.vec4(0.0, 0.0, 1.0, -1.0e6))
+NO_WALL = wp.constant(vec5(0.0, 0.0, 1.0, -1.0e6, 0.0))
 """Wall plane of a particle with no collider within h: a million metres away."""
+
+
+CURVATURE_STEP = wp.constant(0.05)
+"""Finite-difference step of :func:`wall_curvature`, in kernel radii h."""
+
+
+@wp.func
+def wall_curvature(cols: Colliders, c: int, q: wp.vec3, sd: wp.vec4, h: float) -> float:
+    """Mean curvature κ (1/m, > 0 convex) of a smooth collider ``c`` (a sphere or a capsule)
+    at the point nearest to its local point ``q``, whose SDF sample is ``sd``, for
+    :func:`wall_sum`.
+
+    The SDF's Laplacian L (the divergence of its normal, by central differences over
+    :data:`CURVATURE_STEP` · h) is 2κ/(1 + κd) at distance d from a sphere of curvature κ,
+    so κ = L/(2 − L d): exact beside a sphere, within κd of the mean curvature beside a
+    capsule's cylinder. A step across the SDF's medial axis (a particle pushed deep inside)
+    reads no curvature, and κ is clamped to [−1/(2h), 2/h], the range of :func:`wall_sum`."""
+    e = CURVATURE_STEP * h
+    ex = wp.vec3(e, 0.0, 0.0)
+    ey = wp.vec3(0.0, e, 0.0)
+    ez = wp.vec3(0.0, 0.0, e)
+    lap = sdf_of(cols, c, q + ex)[1] - sdf_of(cols, c, q - ex)[1]
+    lap += sdf_of(cols, c, q + ey)[2] - sdf_of(cols, c, q - ey)[2]
+    lap += sdf_of(cols, c, q + ez)[3] - sdf_of(cols, c, q - ez)[3]
+    lap = lap / (2.0 * e)
+    hi = 2.0 / h
+    if lap < -2.0 / h:  # the normal flipped: a step crossed a medial axis, not a cavity
+        return 0.0
+    den = 2.0 - lap * wp.max(sd[0], 0.0)
+    if den <= 0.0:  # beyond the sphere of curvature hi at this distance
+        return hi
+    return wp.clamp(lap / den, -0.5 / h, hi)
 
 
 # --------------------------------------------------------------------------- step 1: predict
@@ -1159,7 +1204,7 @@ def predict(
     x_prev: wp.array(dtype=wp.vec3),
     p: wp.array(dtype=wp.vec3),
     clear: wp.array(dtype=float),
-    wall: wp.array(dtype=wp.vec4),
+    wall: wp.array(dtype=vec5),
     wall_collider: wp.array(dtype=wp.int32),
 ):
     """Velocity and predicted position x* under gravity and damping, and at x*:
@@ -1172,8 +1217,12 @@ def predict(
       stays above :data:`CLEAR_MARGIN` the collider passes skip its SDFs without changing
       any result.
     - ``wall``, ``wall_collider``: the nearest collider surface within h, as the plane
-      (n, n · x* − distance) tangent to it, and its index (−1 and :data:`NO_WALL` if none):
-      the wall term of the density constraint (:func:`density_and_lambda`)."""
+      (n, n · x* − distance) tangent to it with the surface's mean curvature κ there, and its
+      index (−1 and :data:`NO_WALL` if none): the wall term of the density constraint
+      (:func:`density_and_lambda`). κ is read for spheres and capsules
+      (:func:`wall_curvature`); shapes with edges (boxes, cylinders, meshes, container
+      shells) keep κ = 0, the half-space, since a sphere does not describe the solid at an
+      edge (docs/contact.md)."""
     i = wp.tid()
     w = world[i]
     vi = (v[i] + gravity * dt) * (1.0 / (1.0 + damping[w] * dt))
@@ -1185,6 +1234,8 @@ def predict(
     nearest = float(h)
     plane = NO_WALL
     index = int(-1)
+    q_near = wp.vec3(0.0)
+    sd_near = wp.vec4(0.0)
     for c in range(cols.world_start[w], cols.world_end[w]):
         q = wp.transform_point(wp.transform_inverse(cols.pose[c]), pi)
         gap = wp.length(q) - cols.bound[c]
@@ -1193,11 +1244,18 @@ def predict(
             room = wp.min(room, sd[0] - radius)
             if sd[0] < nearest:
                 nearest = sd[0]
-                n = wp.transform_vector(cols.pose[c], wp.vec3(sd[1], sd[2], sd[3]))
-                plane = wp.vec4(n[0], n[1], n[2], wp.dot(n, pi) - sd[0])
                 index = c
+                q_near = q
+                sd_near = sd
         else:
             room = wp.min(room, gap - radius)
+    if index >= 0:
+        n = wp.transform_vector(cols.pose[index], wp.vec3(sd_near[1], sd_near[2], sd_near[3]))
+        kappa = float(0.0)
+        kind = cols.kind[index]
+        if kind == SPHERE or kind == CAPSULE:
+            kappa = wall_curvature(cols, index, q_near, sd_near, h)
+        plane = vec5(n[0], n[1], n[2], wp.dot(n, pi) - sd_near[0], kappa)
     clear[i] = room
     wall[i] = plane
     wall_collider[i] = index
@@ -1285,7 +1343,7 @@ def apply_delta(
     radius: float,
     dt: float,
     lam: wp.array(dtype=float),
-    wall: wp.array(dtype=wp.vec4),
+    wall: wp.array(dtype=vec5),
     wall_collider: wp.array(dtype=wp.int32),
     wall_coef: float,
     h: float,
@@ -1319,7 +1377,7 @@ def apply_delta(
     li = lam[i]
     if wc >= 0 and li < 0.0:  # λ = 0 (not compressed): no push, and no reaction to sum
         wl = wall[i]
-        ws = wall_sum(wall_distance(wl, p0), h, wall_coef)
+        ws = wall_sum(wall_distance(wl, p0), wl[4], h, wall_coef)
         push_off = wp.vec3(wl[0], wl[1], wl[2]) * (sor * li * ws[1] / w0)
         pi = pi + push_off
         add_reaction(cols, wc, push_off, pi, mass[w], dt)

@@ -679,7 +679,7 @@ class PBFSolver:
         self.dv_sum = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.push = wp.zeros(n, dtype=float, device=dev)
         self.clear = wp.zeros(n, dtype=float, device=dev)  # collider clearance (K.predict)
-        self.wall = wp.zeros(n, dtype=wp.vec4, device=dev)  # nearest wall's plane (K.predict)
+        self.wall = wp.zeros(n, dtype=K.vec5, device=dev)  # nearest wall (K.predict)
         self.wall_collider = wp.full(n, -1, dtype=wp.int32, device=dev)
         self.density = wp.zeros(n, dtype=float, device=dev)
         self.contacts = wp.zeros(n, dtype=wp.int32, device=dev)
