@@ -1,7 +1,7 @@
 """The container family: ``assets/containers.toml`` -> fluid colliders and MuJoCo bodies.
 
 Each entry of the TOML file becomes a :class:`Container` whose ``shape`` is the fluid solver's
-signed-distance collider (a :mod:`pourbench.fluids.shapes` object). :func:`add_container_body`
+signed-distance collider (a :mod:`pourbench.geometry.shapes` object). :func:`add_container_body`
 builds the MuJoCo body from the *same* shape: the revolved wall is the union, over the profile's
 segments, of 2-D "stadiums" (all points within half the wall thickness of the segment — exactly
 the SDF's wall), each revolved in angular sectors into convex mesh pieces. Arc vertices are
@@ -37,7 +37,15 @@ from pourbench.errors import (
     check_quat,
     read_toml,
 )
-from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell, bottle, bowl, cup, tray
+from pourbench.geometry.shapes import (
+    BoxShell,
+    ContainerShape,
+    RevolvedShell,
+    bottle,
+    bowl,
+    cup,
+    tray,
+)
 
 ROLES: tuple[str, ...] = ("training", "novel", "receiving")
 KINDS: dict[str, tuple[str, ...]] = {

@@ -265,7 +265,7 @@ def test_refused_add_container_body_leaves_spec_unchanged(kwargs: dict, match: s
 def test_mesh_size_is_capped_before_building() -> None:
     import dataclasses
 
-    from pourbench.fluids.shapes import cup
+    from pourbench.geometry.shapes import cup
 
     huge = dataclasses.replace(get_container("cup_small"), name="huge", shape=cup(1e4, 0.05))
     with pytest.raises(ValueError, match=r"container 'huge' at max_error=0\.0002 needs \d+ wall"):

@@ -108,8 +108,8 @@ def test_collider_poses_are_rows_of_one_table_written_by_index() -> None:
     list), each collider's ``pose``/``com`` reads its row (also after the table grew), the
     device gets the rows in its collider order, and a bad index changes nothing."""
     from pourbench.errors import InvalidParameterError
-    from pourbench.fluids.shapes import BoxShell
     from pourbench.fluids.solver import PBFSolver
+    from pourbench.geometry.shapes import BoxShell
 
     s = PBFSolver(3)
     for w in (2, 0, 1):  # added out of world order: the device groups them by world

@@ -15,8 +15,8 @@ from pourbench.errors import CapacityError, InvalidParameterError, UnknownNameEr
 from pourbench.fluids import liquid_metrics, liquid_profile
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.meshes import check_closed_mesh, convex_hull
-from pourbench.fluids.shapes import BoxShell, RevolvedShell, bottle, bowl, cup
 from pourbench.fluids.solver import PBFSolver, SolverConfig, cuda_available
+from pourbench.geometry.shapes import BoxShell, RevolvedShell, bottle, bowl, cup
 
 DT = SolverConfig().dt
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from pourbench.fluids.params import liquid_profile
-from pourbench.fluids.shapes import BoxShell
 from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.geometry.shapes import BoxShell
 
 G = 9.81
 CFG = SolverConfig(reorder_every=0)

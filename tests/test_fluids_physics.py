@@ -8,9 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
 from pourbench.fluids.params import liquid_names, liquid_profile
-from pourbench.fluids.shapes import BoxShell, cup
+from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
 from pourbench.fluids.solver import PBFSolver, SolverConfig, inverse_transform_points
 from pourbench.fluids.validation import (
     MARTIN_MOYCE,
@@ -28,6 +27,7 @@ from pourbench.fluids.validation import (
     rest_in_cup,
     scale_reading,
 )
+from pourbench.geometry.shapes import BoxShell, cup
 
 DT = SolverConfig().dt
 
@@ -172,7 +172,9 @@ def test_a_held_sphere_feels_the_archimedes_lift_in_every_liquid() -> None:
     the plane's wall term alone. About 20 minutes on one core."""
     names = [group[0] for group in liquid_groups()]
     lift = held_sphere_lift(names, radius=0.015, settle=2.0, window=2.0)
-    off = {name: round(float(x), 3) for name, x in zip(names, lift) if abs(x - 1.0) > 0.05}
+    off = {
+        name: round(float(x), 3) for name, x in zip(names, lift, strict=True) if abs(x - 1.0) > 0.05
+    }
     assert not off, f"lift over Archimedes' outside 1 ± 0.05: {off}"
 
 

@@ -11,8 +11,8 @@ import pytest
 import warp as wp
 
 from pourbench.fluids import kernels as K
-from pourbench.fluids.shapes import BoxShell, RevolvedShell
 from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.geometry.shapes import BoxShell, RevolvedShell
 
 H = 0.01
 

@@ -308,3 +308,17 @@ def test_realistic_inputs_the_checks_still_take() -> None:
     mujoco.mj_forward(m, data)
     meshes = list(world_meshes(m, data))
     assert meshes and len(list(world_meshes(m, data, {0, 1, 2}))) == len(meshes)
+
+
+def test_drawing_a_scene_loads_no_warp() -> None:
+    """The import layering (DESIGN.md): scenes and containers stand on pure geometry, so a
+    fresh interpreter that builds a scene has loaded neither Warp nor the liquid solver."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, pourbench.scene, pourbench.containers, pourbench.geometry.shapes; "
+        "print(sorted(m for m in ('warp', 'pourbench.fluids') if m in sys.modules))"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert run.stdout.strip() == "[]"

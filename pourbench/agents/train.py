@@ -223,10 +223,10 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
     """Train until the budget is spent, write the plot, evaluate against a random policy;
     the result (also written to ``<out>/result.json``). ``command`` is recorded as the
     session's command line (None: this process's ``pourbench …`` arguments)."""
-    from pourbench.envs.core import _known_liquid
+    from pourbench.envs.core import known_liquid
     from pourbench.outputs import OutputPathError, check_output_folder, write_text_atomic
 
-    _known_liquid(args.liquid)  # before any work: a typo fails in a second
+    known_liquid(args.liquid)  # before any work: a typo fails in a second
     out = check_output_folder(args.out)
     model_path, icm_path = out / "model.zip", out / "icm.pt"
     state: dict[str, Any] = {"timesteps": 0, "train_s": 0.0, "sessions": 0, "history": []}

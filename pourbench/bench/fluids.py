@@ -24,7 +24,6 @@ from pourbench.bench._report import devices, markdown_table, report_stem, write_
 from pourbench.bench.fluids_baseline import BaselinePBF
 from pourbench.envs.core import default_solver_config
 from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
-from pourbench.fluids.shapes import BoxShell
 from pourbench.fluids.solver import PBFSolver, SolverConfig
 from pourbench.fluids.validation import (
     MARTIN_MOYCE,
@@ -40,6 +39,7 @@ from pourbench.fluids.validation import (
     rest_in_cup,
     scale_reading,
 )
+from pourbench.geometry.shapes import BoxShell
 
 TARGET_CPU_PPS = 1_000_000  # issue target at 16k particles on one core
 TARGET_CUDA_PPS = 1_000_000_000

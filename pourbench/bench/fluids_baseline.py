@@ -14,7 +14,7 @@ import numpy as np
 import warp as wp
 
 from pourbench.fluids.kernels import spiky, spiky_grad
-from pourbench.fluids.solver import SolverConfig, _rest_sums
+from pourbench.fluids.solver import SolverConfig, rest_sums
 
 wp.set_module_options({"enable_backward": False})
 
@@ -117,7 +117,7 @@ class BaselinePBF:
         self.p = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.p2 = wp.zeros(n, dtype=wp.vec3, device=dev)
         self.lam = wp.zeros(n, dtype=float, device=dev)
-        self.w0, self.grad_c, s2 = _rest_sums(cfg)
+        self.w0, self.grad_c, s2 = rest_sums(cfg)
         self.eps = cfg.relaxation * s2
         self.grid = wp.HashGrid(128, 128, 128, device=dev)
 

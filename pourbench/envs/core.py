@@ -290,7 +290,7 @@ class PourBatch:
                 f"unknown container_set {cfg.container_set!r}; known: {list(CONTAINER_SETS)}"
             )
         if cfg.liquid is not None:
-            _known_liquid(cfg.liquid)
+            known_liquid(cfg.liquid)
         self.config, self.n = cfg, check_int("num_worlds", num_worlds, minimum=1)
         self.lessons: tuple[Lesson, ...] = load_curriculum(cfg.curriculum)
         self.lesson = 0
@@ -460,7 +460,7 @@ class PourBatch:
         if liq is None:
             liquid = self.lessons[self.lesson].sample(rng)
         else:
-            liquid = _known_liquid(liq)
+            liquid = known_liquid(liq)
         # container: one that holds the drawn range's largest target with room to pour,
         # and in any case the amount asked for
         name = opts.get("container")
@@ -899,7 +899,7 @@ MAX_START_HEIGHT = 0.5
 """Highest start of the pouring container's base above the receiving one's, m."""
 
 
-def _known_liquid(liquid: str | LiquidProfile) -> LiquidProfile:
+def known_liquid(liquid: str | LiquidProfile) -> LiquidProfile:
     """The profile for ``liquid``; a ``ValueError`` listing the known names otherwise."""
     try:
         return liquid_profile(liquid)

@@ -72,9 +72,9 @@ from pourbench.envs.core import (
     OBS_BOUND,
     OBS_SIZE,
     PourConfig,
-    _known_liquid,
     default_solver_config,
     draw_amounts,
+    known_liquid,
     liquid_account,
     particle_grams,
 )
@@ -238,7 +238,7 @@ class RobotPourEnv(gym.Env):
                 f"unknown action_mode {cfg.action_mode!r}; known: {list(ACTION_MODES)}"
             )
         if cfg.liquid is not None:
-            _known_liquid(cfg.liquid)
+            known_liquid(cfg.liquid)
         self.settings = settings or RobotSettings()
         if not isinstance(self.settings, RobotSettings):
             raise InvalidParameterError(f"settings must be RobotSettings, got {settings!r}")
@@ -417,7 +417,7 @@ class RobotPourEnv(gym.Env):
         if opts.get("container", self.container) != self.container:
             raise UnknownNameError("pouring container", opts["container"], (self.container,))
         liq = opts.get("liquid", cfg.liquid)
-        liquid = self.lessons[self.lesson].sample(rng) if liq is None else _known_liquid(liq)
+        liquid = self.lessons[self.lesson].sample(rng) if liq is None else known_liquid(liq)
         target, initial = draw_amounts(
             opts, rng, cfg, liquid, self.container, self.capacity_g(liquid.density),
             self.solver_config.spacing,

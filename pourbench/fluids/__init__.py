@@ -3,8 +3,16 @@
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics, liquid_metrics_all
 from pourbench.fluids.params import LiquidProfile, liquid_names, liquid_profile, load_liquids
-from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell, bottle, bowl, cup, tray
 from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.geometry.shapes import (
+    BoxShell,
+    ContainerShape,
+    RevolvedShell,
+    bottle,
+    bowl,
+    cup,
+    tray,
+)
 
 __all__ = [
     "BoxShell",

@@ -19,8 +19,8 @@ import warp as wp
 from pourbench.errors import InvalidParameterError, check_array, check_index, check_int
 from pourbench.fluids import kernels as K
 from pourbench.fluids.meshes import convex_hull
-from pourbench.fluids.shapes import ContainerShape
 from pourbench.fluids.solver import PBFSolver, shape_kind
+from pourbench.geometry.shapes import ContainerShape
 
 _GEOM_KIND = {
     mujoco.mjtGeom.mjGEOM_PLANE: "plane",

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pourbench.errors import InvalidParameterError, check_index
-from pourbench.fluids.shapes import ContainerShape
 from pourbench.fluids.solver import PBFSolver, inverse_transform_points
+from pourbench.geometry.shapes import ContainerShape
 
 
 @dataclass(frozen=True)

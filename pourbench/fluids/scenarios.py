@@ -18,8 +18,8 @@ from pourbench.errors import check_finite
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics
 from pourbench.fluids.params import LiquidProfile
-from pourbench.fluids.shapes import RevolvedShell, cup
 from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.geometry.shapes import RevolvedShell, cup
 
 GRAVITY = 9.81
 

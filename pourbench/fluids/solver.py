@@ -53,7 +53,7 @@ from pourbench.errors import (
 from pourbench.fluids import kernels as K
 from pourbench.fluids.meshes import check_closed_mesh
 from pourbench.fluids.params import LiquidProfile, liquid_profile
-from pourbench.fluids.shapes import BoxShell, ContainerShape, RevolvedShell
+from pourbench.geometry.shapes import BoxShell, ContainerShape, RevolvedShell
 
 RUNAWAY_ENERGY = 3.0
 """How many times the specific energy a world's scene holds (its liquid's height range under
@@ -337,7 +337,7 @@ def _bound(c: Collider) -> float:
     return float(np.linalg.norm([hx + wall, hy + wall, depth + 2.0 * wall]))
 
 
-def _rest_sums(cfg: SolverConfig) -> tuple[float, float, float]:
+def rest_sums(cfg: SolverConfig) -> tuple[float, float, float]:
     """Rest sums of the density constraint, from a particle in a full cubic lattice of
     ``spacing`` (the kernel sum scaled by ``rest_packing``).
 
@@ -404,7 +404,7 @@ class PBFSolver:
             mode = "full" if self.device.is_cuda else "half"
         self.half_lists = mode == "half"
         self.pairk = K.HALF_LISTS if self.half_lists else K.FULL_LISTS
-        self.w0, self.grad_c, sum_grad2 = _rest_sums(self.config)
+        self.w0, self.grad_c, sum_grad2 = rest_sums(self.config)
         self.wall_coef = _wall_coef(self.config)
         lat = np.linalg.norm(_lattice(self.config), axis=1)
         self.lattice_neighbours = int(np.count_nonzero((lat > 0) & (lat < self.config.h)))
@@ -530,7 +530,7 @@ class PBFSolver:
     def add_container(
         self, world: int, shape: ContainerShape, pose: np.ndarray | None = None, body: int = -1
     ) -> int:
-        """Add a container shell (from :mod:`pourbench.fluids.shapes`) as a collider."""
+        """Add a container shell (from :mod:`pourbench.geometry.shapes`) as a collider."""
         kind, params = shape_kind(shape)
         name = "revolved" if kind == KIND_NAMES["revolved"] else "box_shell"
         return self.add_collider(world, name, params, pose=pose, body=body, shape=shape)

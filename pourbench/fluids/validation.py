@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from pourbench.fluids.scenarios import GRAVITY, tilt_schedule, two_cup_scene
-from pourbench.fluids.shapes import BoxShell, cup
 from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.geometry.shapes import BoxShell, cup
 
 # Martin & Moyce (1952), n² = 2 (column height 2a, width a): surge-front position Z = x/a at
 # T = t·sqrt(2g/a), interpolated from their tabulated measurements.
