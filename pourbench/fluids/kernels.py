@@ -42,15 +42,16 @@ wp.set_module_options({"enable_backward": False})
 vec5 = wp.types.vector(length=5, dtype=wp.float32)
 """Density pair sums of a particle: Σ∇_i C (xyz), Σ W (w) and Σ|∇_j C|², added in one go."""
 
-# Collider kinds (one SDF routine each).
-PLANE = wp.constant(0)
-BOX = wp.constant(1)
-SPHERE = wp.constant(2)
-CAPSULE = wp.constant(3)
-CYLINDER = wp.constant(4)
-MESH = wp.constant(5)
-REVOLVED = wp.constant(6)
-BOX_SHELL = wp.constant(7)
+KINDS = ("plane", "box", "sphere", "capsule", "cylinder", "mesh", "revolved", "box_shell")
+"""Collider kinds, one SDF routine each; a kind's code is its index here."""
+PLANE = wp.constant(KINDS.index("plane"))
+BOX = wp.constant(KINDS.index("box"))
+SPHERE = wp.constant(KINDS.index("sphere"))
+CAPSULE = wp.constant(KINDS.index("capsule"))
+CYLINDER = wp.constant(KINDS.index("cylinder"))
+MESH = wp.constant(KINDS.index("mesh"))
+REVOLVED = wp.constant(KINDS.index("revolved"))
+BOX_SHELL = wp.constant(KINDS.index("box_shell"))
 
 
 @wp.func

@@ -64,16 +64,8 @@ against a wall carries its tip higher than the column stood (docs/contact.md).""
 OVERFLOW_CHECK_EVERY = 16
 """Steps between checks that no neighbour list is full (one small read-back each)."""
 
-KIND_NAMES = {
-    "plane": 0,
-    "box": 1,
-    "sphere": 2,
-    "capsule": 3,
-    "cylinder": 4,
-    "mesh": 5,
-    "revolved": 6,
-    "box_shell": 7,
-}
+KIND_NAMES = {name: code for code, name in enumerate(K.KINDS)}
+"""Collider kind codes by name (:data:`pourbench.fluids.kernels.KINDS`)."""
 
 
 @dataclass(frozen=True)

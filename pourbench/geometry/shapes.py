@@ -24,9 +24,6 @@ import numpy as np
 
 from pourbench.errors import InvalidParameterError, check_int, check_positive
 
-SHAPE_REVOLVED = 0
-SHAPE_BOX_SHELL = 1
-
 
 @dataclass(frozen=True)
 class RevolvedShell:
