@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pourbench.fluids.params import LiquidProfile
 from pourbench.fluids.scenarios import GRAVITY, tilt_schedule, two_cup_scene
 from pourbench.fluids.solver import PBFSolver, SolverConfig
 from pourbench.geometry.shapes import BoxShell, cup
@@ -326,33 +327,35 @@ def free_drop(
 
 
 def held_sphere_lift(
-    liquids: Sequence[str],
+    liquids: Sequence[str | LiquidProfile],
     radius: float = 0.01,
     tank: float = 0.08,
     settle: float = 1.5,
     window: float = 1.0,
     device: str = "cpu",
 ) -> np.ndarray:
-    """A sphere of ``radius`` (m) held still with its centre half-way down a ``tank``-wide
-    square tank filled ``tank`` deep with each of ``liquids`` (one world each, one solver):
-    the liquid's mean upward force on it over ``window`` s after ``settle`` s, over the
-    Archimedes lift ρ V g of the liquid's rest density. Hydrostatic balance makes it 1."""
+    """A sphere of ``radius`` (m) held still in a ``tank``-wide square tank (1 cm walls and
+    floor) filled ``tank`` deep with each of ``liquids`` (one world each, one solver), its
+    centre 1 cm below mid-depth: the liquid's mean upward force on it over ``window`` s after
+    ``settle`` s, over the Archimedes lift ρ V g of the liquid's rest density. Hydrostatic
+    balance makes it 1."""
     cfg = SolverConfig(device=device)
     s = PBFSolver(len(liquids), cfg)
     shell = BoxShell(tank / 2, tank / 2, tank + 0.02, 0.01)
     volume = 4.0 / 3.0 * math.pi * radius**3
     archimedes = np.empty(len(liquids))
-    for w, name in enumerate(liquids):
-        body = s.new_body_slot()
-        s.add_collider(w, "sphere", [radius], pose=[0, 0, tank / 2, 0, 0, 0, 1], body=body)
-        s.set_liquid(w, name)
+    bodies = []
+    for w, liquid in enumerate(liquids):
+        bodies.append(s.new_body_slot())
+        s.add_collider(w, "sphere", [radius], pose=[0, 0, tank / 2, 0, 0, 0, 1], body=bodies[-1])
+        s.set_liquid(w, liquid)
         rho = s.liquids[w].density
-        s.fill(w, s.add_container(w, shell), rho * (tank**3 - volume) * 1e3, name)
+        s.fill(w, s.add_container(w, shell), rho * (tank**3 - volume) * 1e3, liquid)
         archimedes[w] = rho * volume * GRAVITY
     s.step(round(settle / cfg.dt))
     steps = round(window / cfg.dt)
     lift = np.zeros(len(liquids))
     for _ in range(steps):
         s.step()
-        lift += s.body_wrenches()[0][: len(liquids), 2]
+        lift += s.body_wrenches()[0][bodies, 2]
     return lift / steps / archimedes
