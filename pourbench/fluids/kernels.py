@@ -1161,9 +1161,9 @@ CURVATURE_STEP = wp.constant(0.05)
 
 
 @wp.func
-def wall_curvature(cols: Colliders, c: int, q: wp.vec3, sd: wp.vec4, h: float) -> float:
+def wall_curvature(cols: Colliders, c: int, q: wp.vec3, d: float, h: float) -> float:
     """Mean curvature κ (1/m, > 0 convex) of a smooth collider ``c`` (a sphere or a capsule)
-    at the point nearest to its local point ``q``, whose SDF sample is ``sd``, for
+    at the point nearest to its local point ``q``, ``d`` from it (the SDF there), for
     :func:`wall_sum`.
 
     The SDF's Laplacian L (the divergence of its normal, by central differences over
@@ -1182,7 +1182,7 @@ def wall_curvature(cols: Colliders, c: int, q: wp.vec3, sd: wp.vec4, h: float) -
     hi = 2.0 / h
     if lap < -2.0 / h:  # the normal flipped: a step crossed a medial axis, not a cavity
         return 0.0
-    den = 2.0 - lap * wp.max(sd[0], 0.0)
+    den = 2.0 - lap * wp.max(d, 0.0)
     if den <= 0.0:  # beyond the sphere of curvature hi at this distance
         return hi
     return wp.clamp(lap / den, -0.5 / h, hi)
@@ -1255,7 +1255,7 @@ def predict(
         kappa = float(0.0)
         kind = cols.kind[index]
         if kind == SPHERE or kind == CAPSULE:
-            kappa = wall_curvature(cols, index, q_near, sd_near, h)
+            kappa = wall_curvature(cols, index, q_near, sd_near[0], h)
         plane = vec5(n[0], n[1], n[2], wp.dot(n, pi) - sd_near[0], kappa)
     clear[i] = room
     wall[i] = plane
