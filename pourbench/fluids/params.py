@@ -33,7 +33,7 @@ FLEX_NAMES: dict[str, str] = {
     "buoyancy": "buoyancy",
     "density": "density",
 }
-_OPTIONAL = {"viscosity_cp", "marble_speed"}
+_OPTIONAL = {"viscosity_cp", "viscosity_pa_s", "marble_speed"}
 _META = {"name", "source", "base", "aliases"}
 
 
@@ -52,6 +52,8 @@ class LiquidProfile:
         buoyancy: FleX gravity scale for fluid particles (kept for provenance; 1 = full gravity).
         solid_rest, fluid_rest: the thesis' Unity-FleX rest values (provenance only).
         viscosity_cp: measured dynamic viscosity (cP), if the thesis measured it.
+        viscosity_pa_s: dynamic viscosity, Pa·s, that the solver applies by an implicit solve
+            (:mod:`pourbench.fluids.viscosity`); None: none.
         marble_speed: falling-ball speed (m/s) in Table 3.4, if measured.
         source: where each number comes from.
     """
@@ -72,6 +74,7 @@ class LiquidProfile:
     solid_rest: float
     fluid_rest: float
     viscosity_cp: float | None = None
+    viscosity_pa_s: float | None = None
     marble_speed: float | None = None
     source: str = ""
 
@@ -93,6 +96,12 @@ class LiquidProfile:
                 raise InvalidParameterError(f"{what} must be finite, got {v!r}")
             if v < 0 or (f.name == "density" and v == 0):
                 raise InvalidParameterError(f"{what} must be positive, got {v!r}")
+        cp, pa_s = self.viscosity_cp, self.viscosity_pa_s
+        if cp is not None and pa_s is not None and not math.isclose(cp * 1e-3, pa_s, rel_tol=1e-6):
+            raise InvalidParameterError(
+                f"liquid {self.name!r}: viscosity_cp {cp!r} (cP) and viscosity_pa_s {pa_s!r} "
+                "(Pa·s) disagree; give one, or both equal"
+            )
 
     def replace(self, **changes: float) -> LiquidProfile:
         """Copy with some attributes (snake_case or FleX names) changed; values are validated."""
