@@ -345,6 +345,14 @@ def test_cuda_rest() -> None:
 
 
 @pytest.mark.gpu
+def test_cuda_held_sphere_feels_the_archimedes_lift() -> None:
+    """The held sphere on CUDA (water and Honey, as the slow CPU test measures them): within
+    5 % of the Archimedes lift."""
+    lift = held_sphere_lift(["water", "honey"], radius=0.015, settle=2.0, window=2.0, device="cuda")
+    assert lift == pytest.approx([1.0, 1.0], abs=0.05)
+
+
+@pytest.mark.gpu
 def test_cuda_shaken_box() -> None:
     check_shaken_box("cuda")
 
