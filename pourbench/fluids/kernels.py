@@ -456,8 +456,8 @@ tolerance: all of it at 1.5 × the tolerance (:func:`update_active`)."""
 MIN_SHARE = wp.constant(0.05)
 """The least share of an extra iteration a world takes: below it (its density error within
 2.5 % of the tolerance) the world is done for the step. Shares shrink with the error's excess,
-so without a floor a world's error creeps toward the tolerance and never crosses it: a cup of
-200 g of water ran all 60 extra iterations of a step at shares near 5e-4."""
+so without a floor a world's error creeps toward the tolerance without crossing it, and the
+world runs every extra iteration the cap allows at near-zero shares."""
 
 
 @wp.kernel

@@ -126,8 +126,8 @@ class SolverConfig:
         viscosity_max_iterations: cap on that solve's conjugate-gradient iterations a step.
         laplacian_packing: the settled liquid's pair sum of the viscous Laplacian's kernel
             second moment (Σ_j V g_ij r_ij², :mod:`pourbench.fluids.viscosity`) as a fraction of
-            the continuum's; the pair terms are divided by it. Measured 0.897 in water settled
-            in a cup at 5 and 2.5 mm spacing.
+            the continuum's; the pair terms are divided by it (measured on settled water,
+            docs/viscosity.md).
         viscosity_rate: κ of the XSPH mapping (dimensionless, per unit FleX viscosity): each
             step of ``calibration_dt`` relaxes a velocity toward its neighbours' kernel mean by
             a = κν / (1 + κν); other steps use 1 − (1 − a)^(dt / calibration_dt), the same
