@@ -50,9 +50,6 @@ import warp as wp
 
 from pourbench.fluids import kernels as K
 
-LAPLACE = wp.constant(10.0)
-"""2 (d + 2) in three dimensions."""
-
 CHUNK = 256
 """Particles per partial sum of a world's dot products."""
 
@@ -289,6 +286,17 @@ def residual(
     partial[k, 2] = s2
 
 
+@wp.func
+def world_sum(
+    partial: wp.array2d(dtype=float), world_chunks: wp.array(dtype=wp.int32), w: int, col: int
+) -> float:
+    """Column ``col`` of world ``w``'s chunk sums, added in chunk order."""
+    s = float(0.0)
+    for k in range(world_chunks[w], world_chunks[w + 1]):
+        s += partial[k, col]
+    return s
+
+
 @wp.kernel
 def begin_worlds(
     world_chunks: wp.array(dtype=wp.int32),
@@ -304,13 +312,9 @@ def begin_worlds(
     """Per world: r·z and b·b from its chunks; a viscous world goes on while |r| exceeds
     ``tolerance`` |b| (``any_active`` zero on entry)."""
     w = wp.tid()
-    s0 = float(0.0)
-    s1 = float(0.0)
-    s2 = float(0.0)
-    for k in range(world_chunks[w], world_chunks[w + 1]):
-        s0 += partial[k, 0]
-        s1 += partial[k, 1]
-        s2 += partial[k, 2]
+    s0 = world_sum(partial, world_chunks, w, 0)
+    s1 = world_sum(partial, world_chunks, w, 1)
+    s2 = world_sum(partial, world_chunks, w, 2)
     rz[w] = s0
     bb[w] = s2
     iterations[w] = 0
@@ -359,10 +363,7 @@ def step_length(
     w = wp.tid()
     if active[w] == 0:
         return
-    s = float(0.0)
-    for k in range(world_chunks[w], world_chunks[w + 1]):
-        s += partial[k, 0]
-    alpha[w] = rz[w] / wp.max(s, 1.0e-30)
+    alpha[w] = rz[w] / wp.max(world_sum(partial, world_chunks, w, 0), 1.0e-30)
 
 
 @wp.kernel
@@ -417,11 +418,8 @@ def next_direction_scale(
     w = wp.tid()
     if active[w] == 0:
         return
-    s0 = float(0.0)
-    s1 = float(0.0)
-    for k in range(world_chunks[w], world_chunks[w + 1]):
-        s0 += partial[k, 0]
-        s1 += partial[k, 1]
+    s0 = world_sum(partial, world_chunks, w, 0)
+    s1 = world_sum(partial, world_chunks, w, 1)
     beta[w] = s0 / wp.max(rz[w], 1.0e-30)
     rz[w] = s0
     iterations[w] = iterations[w] + 1
