@@ -183,7 +183,7 @@ def test_weight_filter_noise_level() -> None:
 def test_default_curriculum() -> None:
     lessons = load_curriculum()
     assert [lesson.fraction for lesson in lessons] == [0.25, 0.25, 0.5]
-    for key in ("adhesion", "viscosity"):
+    for key in ("adhesion", "viscosity_pa_s"):
         mids = [np.mean(lesson.ranges[key]) for lesson in lessons]
         assert mids == sorted(mids) and mids[0] < mids[-1]
     rng = np.random.default_rng(1)
@@ -192,6 +192,10 @@ def test_default_curriculum() -> None:
             liq = lesson.sample(rng)
             for key, (lo, hi) in lesson.ranges.items():
                 assert lo <= getattr(liq, key) <= hi
+    # the viscosity is log-uniform: half the draws of the last lesson below the geometric mean
+    lo, hi = lessons[2].ranges["viscosity_pa_s"]
+    draws = np.array([lessons[2].sample(rng).viscosity_pa_s for _ in range(400)])
+    assert np.mean(draws < np.sqrt(lo * hi)) == pytest.approx(0.5, abs=0.08)
     assert [lesson_at(p, lessons) for p in (0.0, 0.3, 0.6, 1.0)] == [0, 1, 2, 2]
     # a last rollout past its budget stays in the last lesson; NaN used to give it too
     assert lesson_at(1.02, lessons) == 2
@@ -205,7 +209,7 @@ GOOD_RANGES = {
     "adhesion": "[0.0, 0.001]",
     "cohesion": "[0.001, 0.002]",
     "surface_tension": "[0.0, 0.005]",
-    "viscosity": "[0.01, 0.05]",
+    "viscosity_pa_s": "[0.001, 0.003]",
 }
 
 
@@ -214,7 +218,8 @@ GOOD_RANGES = {
     [
         ({"density": "[1000.0, 900.0]"}, "lesson 0: density must be [low, high]"),
         ({"density": "[-100.0, 900.0]"}, "lesson 0: density must be > 0"),
-        ({"viscosity": "[-0.1, 0.05]"}, "lesson 0: viscosity must be >= 0"),
+        ({"viscosity_pa_s": "[-0.1, 0.05]"}, "lesson 0: viscosity_pa_s must be > 0"),
+        ({"viscosity_pa_s": "[0.0, 0.05]"}, "lesson 0: viscosity_pa_s must be > 0"),
         ({"cohesion": "[0.001, nan]"}, "lesson 0: cohesion must be [low, high]"),
         ({"adhesion": None}, "lesson 0: adhesion must be [low, high]"),
         ({"fraction": None}, "lesson 0: fraction must be a number >= 0"),

@@ -646,6 +646,7 @@ def test_vorticity_confinement_feeds_the_vortex(mode: str) -> None:
             liquid_profile("water"),
             vorticity_confinement=eps,
             viscosity=0.0,
+            viscosity_pa_s=None,
             surface_tension=0.0,
             cohesion=0.0,
         )
@@ -750,13 +751,20 @@ def test_step_fractions_rescale_with_the_step() -> None:
     so that two half-length steps relax as much as one; adhesion acts as a force: its pull is
     a spring of one stiffness at every step, its grip scales with dt². At ``calibration_dt``
     all are the calibrated values. (That a pour then keeps its timing at another step is checked by
-    ``test_a_sticky_pour_does_not_depend_on_the_step``.)"""
+    ``test_a_sticky_pour_does_not_depend_on_the_step``.) XSPH smooths a liquid with a physical
+    viscosity by ``xsph_viscosity``, and one without by its own FleX coefficient."""
     got = {}
+    ink, honey = (liquid_profile(n).replace(viscosity_pa_s=None) for n in ("ink", "honey"))
     for dt in (1 / 480, 1 / 240, 1 / 120):
-        s = PBFSolver(2, SolverConfig(dt=dt))
-        s.set_liquid(0, "ink")
-        s.set_liquid(1, "honey")
-        got[dt] = s.step_fractions()
+        s = PBFSolver(3, SolverConfig(dt=dt))
+        s.set_liquid(0, ink)
+        s.set_liquid(1, honey)
+        s.set_liquid(2, "honey")
+        got[dt] = {k: f[:2] for k, f in s.step_fractions().items()}
+        xsph = SolverConfig().xsph_viscosity
+        assert s.step_fractions()["viscosity_frac"][2] == pytest.approx(
+            1.0 - (1.0 / (1.0 + xsph)) ** (dt / SolverConfig().calibration_dt)
+        )
     for k in ("viscosity_frac", "friction_frac"):
         left = {dt: 1.0 - f[k] for dt, f in got.items()}
         np.testing.assert_allclose(left[1 / 480] ** 2, left[1 / 240], rtol=1e-12)
@@ -770,7 +778,6 @@ def test_step_fractions_rescale_with_the_step() -> None:
     }
     np.testing.assert_allclose(stiffness[1 / 480], stiffness[1 / 240], rtol=1e-9)
     np.testing.assert_allclose(stiffness[1 / 120], stiffness[1 / 240], rtol=1e-9)
-    ink, honey = liquid_profile("ink"), liquid_profile("honey")
     adhesion = np.array([ink.adhesion, honey.adhesion])
     cfg = SolverConfig()
     kept = {k: 1.0 - f for k, f in got[1 / 240].items()}  # the share that each fraction leaves

@@ -20,9 +20,12 @@ STEPS = round(1.0 / CFG.dt)  # one second
 
 
 def bare(**flex: float):
-    """Water without cohesion, surface tension and adhesion: a lone particle on a shape then
-    feels gravity and the contact alone."""
-    return liquid_profile("water").replace(adhesion=0.0, cohesion=0.0, surfaceTension=0.0, **flex)
+    """Water without cohesion, surface tension, adhesion and physical viscosity (whose no-slip
+    wall would drag a lone particle along a wall): a lone particle on a shape then feels
+    gravity and the contact alone."""
+    return liquid_profile("water").replace(
+        adhesion=0.0, cohesion=0.0, surfaceTension=0.0, viscosity_pa_s=None, **flex
+    )
 
 
 def on_incline(solver: PBFSolver, world: int, degrees: float, x: float) -> np.ndarray:

@@ -29,7 +29,8 @@ PURE = {
     "surfaceTension": 0.0,
     "vorticityConfinement": 0.0,
 }
-"""FleX terms off: the liquid's only velocity filter is the physical viscosity."""
+"""FleX terms off: with ``SolverConfig(xsph_viscosity=0)`` the liquid's only velocity filter is
+the physical viscosity."""
 
 
 def viscous(mu: float):
@@ -74,7 +75,7 @@ def test_wall_tensor_is_the_mirrored_half_space_integral() -> None:
 def _settled_cup(mu: float, omega: float = 2.0) -> tuple[PBFSolver, object]:
     """Water-like liquid of viscosity ``mu`` settled 0.5 s in a 3 cm cup, then set spinning
     about the cup's axis at ``omega`` rad/s."""
-    s = PBFSolver(1, SolverConfig())
+    s = PBFSolver(1, SolverConfig(xsph_viscosity=0.0))
     shape = cup(0.03, 0.075, wall=0.006)
     c = s.add_container(0, shape)
     s.set_liquid(0, viscous(mu))
@@ -139,7 +140,9 @@ def test_viscosity_keeps_momentum_and_spares_rigid_motion() -> None:
     keeps the liquid's momentum and angular momentum, leaves a translation as it is, takes
     less than 1 % of a rotation's kinetic energy (the pairs turn by ω dt over the step), and
     over 40 % of a random field's."""
-    cfg = SolverConfig(gravity=(0.0, 0.0, 0.0), scorr_k=0.0, viscosity_tolerance=1e-6)
+    cfg = SolverConfig(
+        gravity=(0.0, 0.0, 0.0), scorr_k=0.0, viscosity_tolerance=1e-6, xsph_viscosity=0.0
+    )
     g = np.arange(8) * 1.2 * cfg.spacing
     x = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
     centre = x.mean(axis=0)
@@ -181,3 +184,8 @@ def test_viscosity_keeps_momentum_and_spares_rigid_motion() -> None:
 def test_a_bad_viscosity_is_refused(change: dict, match: str) -> None:
     with pytest.raises(InvalidParameterError, match=match):
         liquid_profile("water").replace(**change)
+
+
+def test_centipoise_alone_sets_the_viscosity_in_pa_s() -> None:
+    water = liquid_profile("water").replace(viscosity_pa_s=None, viscosity_cp=3.0)
+    assert water.viscosity_pa_s == pytest.approx(0.003)

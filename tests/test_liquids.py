@@ -63,8 +63,37 @@ def test_measured_density(name: str, rho: float) -> None:
 
 
 @pytest.mark.parametrize("name,mu", sorted(TABLE_3_4_VISCOSITY.items()))
-def test_measured_viscosity(name: str, mu: float) -> None:
-    assert liquid_profile(name).viscosity_cp == mu
+def test_table_3_4_viscosity_is_kept_as_provenance(name: str, mu: float) -> None:
+    assert liquid_profile(name).marble_viscosity_cp == mu
+
+
+def test_every_profile_has_a_physical_viscosity_with_its_source() -> None:
+    for name in liquid_names():
+        p = liquid_profile(name)
+        assert p.viscosity_pa_s is not None and p.viscosity_pa_s > 0, name
+        assert len(p.viscosity_source) > 20, name
+
+
+PUBLISHED_PA_S = {  # the real liquids' dynamic viscosity at 20 °C, and the range it may take
+    "water": (0.001, 0.0011),  # IAPWS: 1.002 mPa·s
+    "glycerine": (1.40, 1.42),  # Segur & Oberstar: 1.412
+    "honey": (5.0, 20.0),  # honeys of 17–18 % moisture
+    "milk": (0.0018, 0.0022),
+    "oil": (0.05, 0.08),
+    "cola": (0.0012, 0.0016),
+    "orange juice": (0.0012, 0.003),
+}
+
+
+@pytest.mark.parametrize("name", sorted(PUBLISHED_PA_S))
+def test_published_viscosities(name: str) -> None:
+    lo, hi = PUBLISHED_PA_S[name]
+    assert lo <= liquid_profile(name).viscosity_pa_s <= hi
+
+
+def test_viscosity_order_of_table_6_2_follows_the_real_liquids() -> None:
+    mu = [liquid_profile(n).viscosity_pa_s for n in TABLE_6_2]
+    assert mu == sorted(mu) and len(set(mu)) == len(mu)
 
 
 def test_table_6_4_liquids_present() -> None:
@@ -76,8 +105,10 @@ def test_table_6_4_liquids_present() -> None:
 def test_derived_profile_takes_base_flex_but_not_base_measurements() -> None:
     apple, water = liquid_profile("apple juice"), liquid_profile("water")
     assert apple.viscosity == water.viscosity and apple.adhesion == water.adhesion
-    assert apple.density == 980.0 and apple.viscosity_cp == 1.15
-    assert liquid_profile("balsamico").viscosity_cp is None
+    assert apple.density == 980.0 and apple.marble_viscosity_cp == 1.15
+    assert apple.viscosity_pa_s != water.viscosity_pa_s
+    assert apple.viscosity_source != water.viscosity_source
+    assert liquid_profile("balsamico").marble_viscosity_cp is None
 
 
 def test_names_are_unique_and_resolvable() -> None:

@@ -22,7 +22,7 @@ import numpy as np
 
 from pourbench.containers import get_container
 from pourbench.envs.action_handler import as_actions, handle_actions
-from pourbench.envs.core import OBS_BOUND, OBS_SIZE, PourBatch, PourConfig
+from pourbench.envs.core import OBS_BOUND, OBS_SIZE, PourBatch, PourConfig, viscosity_feature
 from pourbench.envs.reward import extrinsic_reward
 from pourbench.fluids import MujocoCoupling, liquid_metrics_all
 from pourbench.scene import TABLE_HEIGHT, body_clearance
@@ -194,7 +194,7 @@ class LoopedPourBatch(PourBatch):
                 liq.density / 1000.0,
                 liq.cohesion,
                 liq.surface_tension,
-                liq.viscosity,
+                viscosity_feature(liq),
                 liq.adhesion,
                 c.diameter,
                 c.depth,

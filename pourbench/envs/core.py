@@ -20,6 +20,7 @@ reward and observation are array operations over the worlds.
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Mapping
@@ -525,7 +526,7 @@ class PourBatch:
             liquid.density / 1000.0,
             liquid.cohesion,
             liquid.surface_tension,
-            liquid.viscosity,
+            viscosity_feature(liquid),
             liquid.adhesion,
         ]
         self.liquid_names[world], self.container_names[world] = liquid.name, name
@@ -900,10 +901,24 @@ MAX_START_HEIGHT = 0.5
 
 
 def known_liquid(liquid: str | LiquidProfile) -> LiquidProfile:
-    """The profile for ``liquid``; a ``ValueError`` listing the known names otherwise."""
+    """The profile for ``liquid``; a ``ValueError`` listing the known names otherwise, and an
+    :class:`InvalidParameterError` for a profile without a physical viscosity (the
+    observation's viscosity feature, :func:`viscosity_feature`, needs one)."""
     try:
-        return liquid_profile(liquid)
+        profile = liquid_profile(liquid)
     except UnknownNameError:
         raise
     except Exception as exc:  # e.g. a non-string
         raise UnknownNameError("liquid", liquid, liquid_names()) from exc
+    if profile.viscosity_pa_s is None or profile.viscosity_pa_s <= 0.0:
+        raise InvalidParameterError(
+            f"liquid {profile.name!r} has no physical viscosity (viscosity_pa_s or "
+            f"viscosity_cp, got {profile.viscosity_pa_s!r}); the pouring tasks observe it"
+        )
+    return profile
+
+
+def viscosity_feature(liquid: LiquidProfile) -> float:
+    """The observation's viscosity: log10 of the dynamic viscosity in mPa·s (water 0, honey 4,
+    ketchup 4.4), a scale on which the liquids a policy meets are evenly spread."""
+    return math.log10(liquid.viscosity_pa_s * 1e3)

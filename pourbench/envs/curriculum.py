@@ -1,8 +1,9 @@
 """Curriculum of liquid-parameter ranges (thesis §6.5.6), read from a TOML file.
 
-A lesson is a set of uniform ranges for density (kg/m³) and FleX's adhesion, cohesion,
-surface tension and viscosity, plus the share of training steps it takes. The default file,
-``pourbench/assets/curriculum.toml``, holds the thesis' three lessons.
+A lesson is a set of ranges for density (kg/m³), FleX's adhesion, cohesion and surface
+tension, and the dynamic viscosity (Pa·s), plus the share of training steps it takes. Each
+is drawn uniformly, the viscosity on a log scale (its range spans four decades). The default
+file, ``pourbench/assets/curriculum.toml``, holds the thesis' three lessons.
 """
 
 from __future__ import annotations
@@ -18,17 +19,26 @@ from pourbench.errors import check_finite, read_toml
 from pourbench.fluids import LiquidProfile, liquid_profile
 
 DEFAULT_CURRICULUM = Path(str(resources.files("pourbench") / "assets" / "curriculum.toml"))
-RANDOMISED: tuple[str, ...] = ("density", "adhesion", "cohesion", "surface_tension", "viscosity")
+RANDOMISED: tuple[str, ...] = (
+    "density",
+    "adhesion",
+    "cohesion",
+    "surface_tension",
+    "viscosity_pa_s",
+)
+LOG_UNIFORM = frozenset({"viscosity_pa_s"})
+"""Parameters drawn uniformly in their logarithm."""
 
 
 @dataclass(frozen=True)
 class Lesson:
-    """One lesson: a uniform range ``(low, high)`` per randomised liquid parameter.
+    """One lesson: a range ``(low, high)`` per randomised liquid parameter.
 
     Attributes:
         name: lesson name.
         fraction: share of training steps spent in it.
-        ranges: parameter name -> (low, high); density in kg/m³, the others FleX coefficients.
+        ranges: parameter name -> (low, high); density in kg/m³, viscosity_pa_s in Pa·s, the
+            others FleX coefficients.
     """
 
     name: str
@@ -38,11 +48,20 @@ class Lesson:
     def sample(
         self, rng: np.random.Generator, base: str | LiquidProfile = "water"
     ) -> LiquidProfile:
-        """A liquid with every randomised parameter drawn uniformly from its range, named
-        ``"lesson <lesson name>"`` (what an episode's ``info["liquid"]`` then says) rather
-        than after ``base``, whose other attributes it keeps."""
-        values = {k: float(rng.uniform(*self.ranges[k])) for k in RANDOMISED}
-        return liquid_profile(base).replace(name=f"lesson {self.name}", **values)
+        """A liquid with every randomised parameter drawn from its range (uniformly, or
+        log-uniformly for :data:`LOG_UNIFORM`), named ``"lesson <lesson name>"`` (what an
+        episode's ``info["liquid"]`` then says) rather than after ``base``, whose other
+        attributes it keeps."""
+        values = {}
+        for k in RANDOMISED:
+            lo, hi = self.ranges[k]
+            if k in LOG_UNIFORM:
+                values[k] = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+            else:
+                values[k] = float(rng.uniform(lo, hi))
+        return liquid_profile(base).replace(
+            name=f"lesson {self.name}", viscosity_source=f"lesson {self.name}", **values
+        )
 
 
 def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
@@ -51,7 +70,8 @@ def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
     Raises:
         ValueError: naming the file, lesson and key: the file is not TOML, a lesson lacks a
             range or a fraction, a range is not ``[low, high]`` of finite numbers with
-            low ≤ high, a density is not > 0 or a FleX coefficient is negative, or the
+            low ≤ high, a density or viscosity is not > 0 or a FleX coefficient is negative,
+            or the
             fractions are not ≥ 0 and do not sum to 1.
     """
     path = Path(path) if path is not None else DEFAULT_CURRICULUM
@@ -71,8 +91,9 @@ def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
                     f"{path}: lesson {i}: {key} must be [low, high] of finite numbers with "
                     f"low <= high, got {rng!r}"
                 )
-            if rng[0] < 0 or (key == "density" and rng[0] == 0):
-                least = "> 0" if key == "density" else ">= 0"
+            positive = key == "density" or key in LOG_UNIFORM
+            if rng[0] < 0 or (positive and rng[0] == 0):
+                least = "> 0" if positive else ">= 0"
                 raise ValueError(f"{path}: lesson {i}: {key} must be {least}, got {rng!r}")
             ranges[key] = (float(rng[0]), float(rng[1]))
         fraction = entry.get("fraction")

@@ -61,7 +61,7 @@ class PourEnv(gym.Env):
         0. liquid density, g/ml (= kg/m³ / 1000)
         1. cohesion (FleX coefficient)
         2. surface tension (FleX coefficient)
-        3. viscosity (FleX coefficient)
+        3. viscosity: log10 of the dynamic viscosity in mPa·s (water 0, honey 4)
         4. adhesion (FleX coefficient)
         5. pouring-container diameter, m
         6. pouring-container inner depth, m

@@ -77,6 +77,7 @@ from pourbench.envs.core import (
     known_liquid,
     liquid_account,
     particle_grams,
+    viscosity_feature,
 )
 from pourbench.envs.curriculum import load_curriculum
 from pourbench.envs.ft_sensor import gravity_compensate, vertical_load
@@ -469,7 +470,7 @@ class RobotPourEnv(gym.Env):
         self.upright_steps = 0
         self.liquid_obs = np.array(
             [[liquid.density / 1e3, liquid.cohesion, liquid.surface_tension,
-              liquid.viscosity, liquid.adhesion]]
+              viscosity_feature(liquid), liquid.adhesion]]
         )  # fmt: skip
         self.noise_key = rng.integers(0, 2**63, dtype=np.uint64)
         self.noise_count = 0

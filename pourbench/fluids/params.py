@@ -33,8 +33,9 @@ FLEX_NAMES: dict[str, str] = {
     "buoyancy": "buoyancy",
     "density": "density",
 }
-_OPTIONAL = {"viscosity_cp", "viscosity_pa_s", "marble_speed"}
-_META = {"name", "source", "base", "aliases"}
+_OPTIONAL = {"viscosity_cp", "viscosity_pa_s", "marble_speed", "marble_viscosity_cp"}
+_TEXT = {"name", "source", "viscosity_source"}
+_META = {"base", "aliases"} | _TEXT
 
 
 @dataclass(frozen=True)
@@ -51,10 +52,16 @@ class LiquidProfile:
         vorticity_confinement: FleX vorticity confinement strength.
         buoyancy: FleX gravity scale for fluid particles (kept for provenance; 1 = full gravity).
         solid_rest, fluid_rest: the thesis' Unity-FleX rest values (provenance only).
-        viscosity_cp: measured dynamic viscosity (cP), if the thesis measured it.
-        viscosity_pa_s: dynamic viscosity, Pa·s, that the solver applies by an implicit solve
-            (:mod:`pourbench.fluids.viscosity`); None: none.
+        viscosity_pa_s: the liquid's dynamic viscosity, Pa·s, that the solver applies by an
+            implicit solve (:mod:`pourbench.fluids.viscosity`); None: none, and the FleX
+            ``viscosity`` drives XSPH smoothing as in FleX (docs/viscosity.md).
+        viscosity_cp: the same dynamic viscosity in centipoise, an alternative input: given
+            alone it sets ``viscosity_pa_s`` (cP / 1000); given with it, the two must agree.
+        viscosity_source: where ``viscosity_pa_s`` comes from (a publication or a derivation).
         marble_speed: falling-ball speed (m/s) in Table 3.4, if measured.
+        marble_viscosity_cp: Table 3.4's viscosity (cP) as the thesis computed it from that
+            speed by Stokes' law without a wall or inertia correction (provenance only;
+            :mod:`pourbench.fluids.falling_ball` redoes it with both).
         source: where each number comes from.
     """
 
@@ -73,14 +80,16 @@ class LiquidProfile:
     buoyancy: float
     solid_rest: float
     fluid_rest: float
-    viscosity_cp: float | None = None
     viscosity_pa_s: float | None = None
+    viscosity_cp: float | None = None
     marble_speed: float | None = None
+    marble_viscosity_cp: float | None = None
     source: str = ""
+    viscosity_source: str = ""
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
-            if f.name in ("name", "source"):
+            if f.name in _TEXT:
                 if not isinstance(getattr(self, f.name), str):
                     raise InvalidParameterError(
                         f"liquid {f.name} must be a string, got {getattr(self, f.name)!r}"
@@ -102,6 +111,8 @@ class LiquidProfile:
                 f"liquid {self.name!r}: viscosity_cp {cp!r} (cP) and viscosity_pa_s {pa_s!r} "
                 "(Pa·s) disagree; give one, or both equal"
             )
+        if cp is not None and pa_s is None:
+            object.__setattr__(self, "viscosity_pa_s", cp * 1e-3)
 
     def replace(self, **changes: float) -> LiquidProfile:
         """Copy with some attributes (snake_case or FleX names) changed; values are validated."""
@@ -161,7 +172,7 @@ def load_liquids(path: str | Path | None = None) -> dict[str, LiquidProfile]:
             raise ProfileFileError(path, f"profile.{key}.base", f"must be a name, got {base!r}")
         merged = dict(defaults) if base is None else dict(resolve(base, (*chain, key)))
         if base is not None:  # measurements belong to the base liquid, not to this one
-            for k in _OPTIONAL | {"aliases"}:
+            for k in _OPTIONAL | {"aliases", "viscosity_source"}:
                 merged.pop(k, None)
         merged.update(entry)
         resolved[key] = merged
@@ -192,7 +203,8 @@ def load_liquids(path: str | Path | None = None) -> dict[str, LiquidProfile]:
                 path, f"profile.{key}.aliases", f"must be a list of strings, got {aliases!r}"
             )
         try:
-            profile = LiquidProfile(name=name, source=str(fields.get("source", "")), **kwargs)
+            text = {k: fields[k] for k in ("source", "viscosity_source") if k in fields}
+            profile = LiquidProfile(name=name, **text, **kwargs)
         except InvalidParameterError as exc:
             raise ProfileFileError(path, f"profile.{key}", str(exc)) from exc
         for alias in (key, name, *aliases):

@@ -132,6 +132,11 @@ class SolverConfig:
             step of ``calibration_dt`` relaxes a velocity toward its neighbours' kernel mean by
             a = κν / (1 + κν); other steps use 1 − (1 − a)^(dt / calibration_dt), the same
             relaxation per second.
+        xsph_viscosity: the FleX viscosity coefficient XSPH uses for a liquid with a physical
+            viscosity (``LiquidProfile.viscosity_pa_s``): a light smoothing of particle noise,
+            Table 6.2 water's 0.01, the same for every such liquid, while the implicit solve
+            applies the viscosity itself. A liquid without one is smoothed by its own FleX
+            coefficient, as in FleX.
         calibration_dt: the step at which the per-step fractions (XSPH viscosity, particle
             friction, adhesion) were calibrated against the validation experiments; they are
             rescaled to other steps so that a liquid behaves the same at any dt
@@ -173,6 +178,7 @@ class SolverConfig:
     viscosity_max_iterations: int = 100
     laplacian_packing: float = 0.897
     viscosity_rate: float = 1.0
+    xsph_viscosity: float = 0.01
     calibration_dt: float = 1.0 / 240.0
     cohesion_accel: float = 100.0
     surface_tension_accel: float = 100.0
@@ -205,6 +211,7 @@ class SolverConfig:
             "scorr_n",
             "scorr_dq",
             "viscosity_rate",
+            "xsph_viscosity",
             "sleep_threshold",
             "cohesion_accel",
             "surface_tension_accel",
@@ -660,7 +667,11 @@ class PBFSolver:
           left 72 g of 200 in the cup at dt = 1/480 s against 8 g at 1/240.
         """
         cfg = self.config
-        kv = cfg.viscosity_rate * np.array([liq.viscosity for liq in self.liquids])
+        xsph = [
+            liq.viscosity if liq.viscosity_pa_s is None else cfg.xsph_viscosity
+            for liq in self.liquids
+        ]
+        kv = cfg.viscosity_rate * np.array(xsph)
         relax = {
             "viscosity_frac": kv / (1.0 + kv),
             "friction_frac": [min(0.1 * liq.particle_friction, 1.0) for liq in self.liquids],

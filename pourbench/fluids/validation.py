@@ -23,7 +23,7 @@ from pourbench.geometry.shapes import BoxShell, cup
 MARTIN_MOYCE = {1.0: 1.33, 2.0: 2.36, 3.0: 3.70}
 
 VISCOUS_ORDER = ("water", "ink", "oil", "glycerine", "honey", "ketchup")
-"""Table 6.2's liquids in order of FleX viscosity (and adhesion)."""
+"""Table 6.2's liquids in order of viscosity (physical, and FleX's) and adhesion."""
 
 
 REST_FILLS_G = (190.0, 200.0, 210.0)
@@ -424,3 +424,97 @@ def spin_down(
         8.0 / (odd * math.pi) ** 2 * np.exp(-nu * np.outer(t, (odd * math.pi / (2 * depth)) ** 2))
     ).sum(axis=1)
     return SpinDown(t, np.array(turns), side * floor, inner, depth)
+
+
+@dataclass(frozen=True)
+class FallingBall:
+    """A sphere falling through a column of one liquid (:func:`falling_ball`)."""
+
+    liquid: str
+    times: np.ndarray  # s since release
+    depth: np.ndarray  # m, the sphere centre's fall since release
+    speeds: np.ndarray  # m/s, mean downward speed over each third of the measured stretch
+    closed_form: float  # m/s, falling_ball.terminal_speed for the liquid and this geometry
+    reynolds: float  # of the closed form's speed, on the sphere's diameter
+
+    @property
+    def terminal(self) -> float:
+        """m/s: the mean speed over the last two thirds of the measured stretch."""
+        return float(self.speeds[1:].mean())
+
+
+def falling_ball(
+    liquids: Sequence[str | LiquidProfile],
+    radius: float = 0.01,
+    bore: float = 0.04,
+    depth: float = 0.14,
+    seconds: float = 3.0,
+    settle: float = 1.0,
+    ball_density: float = 2500.0,
+    config: SolverConfig | None = None,
+) -> list[FallingBall]:
+    """The falling-ball experiment of thesis §3.3: a glass sphere of ``radius`` (m) and
+    ``ball_density`` (kg/m³) on a vertical slide joint (MuJoCo, two-way coupled) on the axis
+    of a cylinder of inner radius ``bore`` holding ``depth`` of each liquid (one world each).
+    The sphere is held with its top 5 mm under the surface while the liquid settles for
+    ``settle`` s, then released for ``seconds`` or until it comes within a radius of the
+    floor. The stretch measured starts a radius below the release (past the start-up) and
+    ends 1.5 radii above the floor; its three thirds in time give ``speeds``. The closed
+    form is Stokes' drag with the cylinder's Haberman–Sayre factor and the Schiller–Naumann
+    inertia term (:func:`pourbench.fluids.falling_ball.terminal_speed`)."""
+    import mujoco
+
+    from pourbench.fluids.coupling import MujocoCoupling
+    from pourbench.fluids.falling_ball import terminal_speed
+
+    cfg = config or SolverConfig()
+    n = len(liquids)
+    mass = ball_density * 4.0 / 3.0 * math.pi * radius**3
+    shape = cup(bore, depth + 4.0 * radius, wall=0.01)
+    floor = shape.bottom_z
+    z0 = floor + depth - radius - 0.005
+    xml = f"""<mujoco><option timestep="{cfg.dt!r}"/><worldbody>
+      <body name="ball" pos="0 0 {z0!r}"><joint type="slide" axis="0 0 1"/>
+        <geom name="ball" type="sphere" size="{radius!r}" mass="{mass!r}"/>
+      </body></worldbody></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    datas = [mujoco.MjData(model) for _ in range(n)]
+    s = PBFSolver(n, cfg)
+    coupling = MujocoCoupling(s, model, datas)
+    coupling.add_geoms(["ball"])
+    ball_volume = 4.0 / 3.0 * math.pi * radius**3
+    for w, liquid in enumerate(liquids):
+        s.set_liquid(w, liquid)
+        rho = s.liquids[w].density
+        s.fill(w, s.add_container(w, shape), rho * (math.pi * bore**2 * depth - ball_volume) * 1e3)
+
+    def hold() -> None:
+        for d in datas:
+            d.qpos[0], d.qvel[0] = 0.0, 0.0
+            mujoco.mj_kinematics(model, d)
+
+    while s.time < settle - 1e-9:
+        coupling.step()
+        hold()
+    start = s.time
+    times, falls = [0.0], [np.zeros(n)]
+    bottom = -(z0 - floor - radius)  # the fall at which the sphere touches the floor
+    while s.time - start < seconds - 1e-9 and min(falls[-1]) > bottom + radius:
+        coupling.step()
+        times.append(s.time - start)
+        falls.append(np.array([d.qpos[0] for d in datas]))
+    t, fall = np.array(times), -np.array(falls)
+    out = []
+    for w, liquid in enumerate(liquids):
+        rho = s.liquids[w].density
+        mu = s.liquids[w].viscosity_pa_s or 0.0
+        closed, re = terminal_speed(mu, rho, radius, ball_density, bore) if mu else (math.inf, 0.0)
+        stretch = (fall[:, w] >= radius) & (fall[:, w] <= -bottom - 1.5 * radius)
+        ts, zs = t[stretch], fall[stretch, w]
+        speeds = np.full(3, np.nan)  # it did not reach the stretch
+        if len(ts) > 3:
+            edges = np.linspace(ts[0], ts[-1], 4)
+            speeds = np.diff(np.interp(edges, ts, zs)) / np.diff(edges)
+        name = liquid if isinstance(liquid, str) else liquid.name
+        out.append(FallingBall(name, t, fall[:, w], speeds, closed, re))
+    return out
