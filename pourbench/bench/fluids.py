@@ -22,7 +22,14 @@ import warp as wp
 
 from pourbench.bench._report import devices, markdown_table, report_stem, write_report
 from pourbench.bench.fluids_baseline import BaselinePBF
+from pourbench.bench.fluids_viscosity import (
+    BALL_COLUMNS,
+    COST_COLUMNS,
+    falling_ball_check,
+    viscosity_cost,
+)
 from pourbench.envs.core import default_solver_config
+from pourbench.fluids.params import liquid_profile
 from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
 from pourbench.fluids.solver import PBFSolver, SolverConfig
 from pourbench.fluids.validation import (
@@ -310,8 +317,8 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
     )
     for liq, t, g in zip(VISCOUS_ORDER, t_half, left, strict=True):
         lines.append(
-            f"| {liq}: half-pour time (s) / left after 4 s (g) | {t:.3f} / {g:.1f} | "
-            "increasing with viscosity |"
+            f"| {liq} ({liquid_profile(liq).viscosity_pa_s:g} Pa·s): half-pour time (s) / left"
+            f" after 4 s (g) | {t:.3f} / {g:.1f} | water, ink, oil within 2 %; then increasing |"
         )
     lines += [
         f"| 30 cm column (4 × 4 cm box, 0.5–1 s): lowest 2 cm mass / volume over rest | "
@@ -340,6 +347,8 @@ def run(args: argparse.Namespace) -> int:
     checks_device = "cuda" if choice == "cuda" else "cpu"
     checks, checks_md = ({}, "") if args.quick else validation(checks_device)
     hold = [] if args.quick else holding_cost(checks_device)
+    visc_cost = [] if args.quick else viscosity_cost(checks_device)
+    ball, ball_note = ([], "") if args.quick else falling_ball_check(checks_device)
     body = "\n".join(
         [
             "Dam-break block in a tank (width a, height 2a, at most 25 cm tall: larger blocks "
@@ -370,9 +379,26 @@ def run(args: argparse.Namespace) -> int:
             "",
             markdown_table(hold, HOLD_COLUMNS) if hold else "",
             "",
+            f"## Cost of the physical viscosity ({checks_device})" if visc_cost else "",
+            "",
+            "Pour-v0's settings; `ms_per_step_flex`: the same liquid as a FleX-only profile "
+            "(XSPH by its FleX coefficient, no implicit solve), in the same process. "
+            "`viscosity_iterations`: the implicit solve's conjugate-gradient iterations a step "
+            "(docs/viscosity.md)."
+            if visc_cost
+            else "",
+            "",
+            markdown_table(visc_cost, COST_COLUMNS) if visc_cost else "",
+            "",
             f"## Physical checks ({checks_device})" if checks_md else "",
             "",
             checks_md,
+            "",
+            f"## Falling ball, thesis §3.3 ({checks_device})" if ball else "",
+            "",
+            ball_note,
+            "",
+            markdown_table(ball, BALL_COLUMNS) if ball else "",
         ]
     )
     if not args.no_write:
@@ -382,7 +408,14 @@ def run(args: argparse.Namespace) -> int:
             out=args.out,
             title="Fluid solver: throughput and physical checks",
             body_md=body,
-            extra={"validation": checks, "holding_cost": hold} if checks else None,
+            extra={
+                "validation": checks,
+                "holding_cost": hold,
+                "viscosity_cost": visc_cost,
+                "falling_ball": ball,
+            }
+            if checks
+            else None,
         )
     if args.json:
         print(json.dumps({"suite": "fluids", "rows": rows, "validation": checks, "holding": hold}))

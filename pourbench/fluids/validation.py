@@ -457,9 +457,9 @@ def falling_ball(
     ``ball_density`` (kg/m³) on a vertical slide joint (MuJoCo, two-way coupled) on the axis
     of a cylinder of inner radius ``bore`` holding ``depth`` of each liquid (one world each).
     The sphere is held with its top 5 mm under the surface while the liquid settles for
-    ``settle`` s, then released for ``seconds`` or until it comes within a radius of the
-    floor. The stretch measured starts a radius below the release (past the start-up) and
-    ends 1.5 radii above the floor; its three thirds in time give ``speeds``. The closed
+    ``settle`` s, then released for ``seconds``; one that comes within a radius of the floor
+    is held there. The stretch measured starts a radius below the release (past the start-up)
+    and ends 1.5 radii above the floor; its three thirds in time give ``speeds``. The closed
     form is Stokes' drag with the cylinder's Haberman–Sayre factor and the Schiller–Naumann
     inertia term (:func:`pourbench.fluids.falling_ball.terminal_speed`)."""
     import mujoco
@@ -488,28 +488,31 @@ def falling_ball(
         rho = s.liquids[w].density
         s.fill(w, s.add_container(w, shape), rho * (math.pi * bore**2 * depth - ball_volume) * 1e3)
 
-    def hold() -> None:
-        for d in datas:
-            d.qpos[0], d.qvel[0] = 0.0, 0.0
-            mujoco.mj_kinematics(model, d)
+    def hold(worlds: Sequence[int], at: np.ndarray) -> None:
+        for w in worlds:
+            datas[w].qpos[0], datas[w].qvel[0] = at[w], 0.0
+            mujoco.mj_kinematics(model, datas[w])
 
     while s.time < settle - 1e-9:
         coupling.step()
-        hold()
+        hold(range(n), np.zeros(n))
     start = s.time
     times, falls = [0.0], [np.zeros(n)]
-    bottom = -(z0 - floor - radius)  # the fall at which the sphere touches the floor
-    while s.time - start < seconds - 1e-9 and min(falls[-1]) > bottom + radius:
+    lowest = z0 - floor - 2.0 * radius  # a fall that ends a radius above the floor
+    while s.time - start < seconds - 1e-9 and min(falls[-1]) < lowest:
         coupling.step()
+        fall = np.array([-d.qpos[0] for d in datas])
+        landed = np.flatnonzero(fall >= lowest)
+        hold(landed, np.full(n, -lowest))  # stopped over the floor MuJoCo does not see
         times.append(s.time - start)
-        falls.append(np.array([d.qpos[0] for d in datas]))
-    t, fall = np.array(times), -np.array(falls)
+        falls.append(np.minimum(fall, lowest))
+    t, fall = np.array(times), np.array(falls)
     out = []
     for w, liquid in enumerate(liquids):
         rho = s.liquids[w].density
         mu = s.liquids[w].viscosity_pa_s or 0.0
         closed, re = terminal_speed(mu, rho, radius, ball_density, bore) if mu else (math.inf, 0.0)
-        stretch = (fall[:, w] >= radius) & (fall[:, w] <= -bottom - 1.5 * radius)
+        stretch = (fall[:, w] >= radius) & (fall[:, w] <= lowest - 0.5 * radius)
         ts, zs = t[stretch], fall[stretch, w]
         speeds = np.full(3, np.nan)  # it did not reach the stretch
         if len(ts) > 3:
