@@ -98,8 +98,8 @@ def viscosity_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, 
 
 def falling_ball_check(device: str = "cpu") -> tuple[list[dict[str, Any]], str]:
     """Table 3.4's liquids as shipped in :func:`pourbench.fluids.validation.falling_ball`
-    (1 cm glass sphere, 4 cm-radius cylinder, 14 cm column): rows, and whether the terminal
-    speeds keep Table 3.4's order."""
+    (1.5 cm glass sphere, 5 cm-radius cylinder, 14 cm column): rows, and whether the
+    terminal speeds keep Table 3.4's order."""
     print("fluids: falling ball through Table 3.4's liquids…", file=sys.stderr)
     results = falling_ball(MARBLE_ORDER, config=SolverConfig(device=device))
     rows = []
@@ -127,9 +127,10 @@ def falling_ball_check(device: str = "cpu") -> tuple[list[dict[str, Any]], str]:
     ]
     order = "yes" if not swapped else "no: " + ", ".join(swapped)
     note = (
-        "Table 3.4's liquids as shipped: a 1 cm glass sphere (2500 kg/m³) on a vertical slide "
-        "joint (MuJoCo, two-way coupled), released just under the surface of a 14 cm column in "
-        "a cylinder of 4 cm inner radius after 1 s of settling, for up to 3 s. `speeds`: mean "
+        "Table 3.4's liquids as shipped: a glass sphere of 1.5 cm radius (three spacings; "
+        "2500 kg/m³) on a vertical slide joint (MuJoCo, two-way coupled), released just under "
+        "the surface of a 14 cm column in a cylinder of 5 cm inner radius after 1 s of "
+        "settling, for up to 3 s. `speeds`: mean "
         "speed over each third (in time) of the fall from a radius below the release to 1.5 "
         "radii above the floor; `terminal`: the last two thirds; a sphere that reached "
         "the floor within the first step of the stretch shows nan. `closed_form`: Stokes' "

@@ -445,8 +445,8 @@ class FallingBall:
 
 def falling_ball(
     liquids: Sequence[str | LiquidProfile],
-    radius: float = 0.01,
-    bore: float = 0.04,
+    radius: float = 0.015,
+    bore: float = 0.05,
     depth: float = 0.14,
     seconds: float = 3.0,
     settle: float = 1.0,
