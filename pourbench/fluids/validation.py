@@ -459,7 +459,9 @@ def falling_ball(
     The sphere is held with its top 5 mm under the surface while the liquid settles for
     ``settle`` s, then released for ``seconds``; one that comes within a radius of the floor
     is held there. The stretch measured starts a radius below the release (past the start-up)
-    and ends 1.5 radii above the floor; its three thirds in time give ``speeds``. The closed
+    and ends with the sphere's centre 5 radii above the floor (nearer, the floor slows it:
+    Brenner's factor is 1 + 9R/8z to first order, 1.2 there); its three thirds in time give
+    ``speeds``. The closed
     form is Stokes' drag with the cylinder's Haberman–Sayre factor and the Schiller–Naumann
     inertia term (:func:`pourbench.fluids.falling_ball.terminal_speed`)."""
     import mujoco
@@ -512,7 +514,7 @@ def falling_ball(
         rho = s.liquids[w].density
         mu = s.liquids[w].viscosity_pa_s or 0.0
         closed, re = terminal_speed(mu, rho, radius, ball_density, bore) if mu else (math.inf, 0.0)
-        stretch = (fall[:, w] >= radius) & (fall[:, w] <= lowest - 0.5 * radius)
+        stretch = (fall[:, w] >= radius) & (fall[:, w] <= lowest - 3.0 * radius)
         ts, zs = t[stretch], fall[stretch, w]
         speeds = np.full(3, np.nan)  # it did not reach the stretch
         if len(ts) > 3:
