@@ -72,10 +72,10 @@ def test_wall_tensor_is_the_mirrored_half_space_integral() -> None:
         assert tt == pytest.approx(want_t, rel=2e-4)
 
 
-def _settled_cup(mu: float, omega: float = 2.0) -> tuple[PBFSolver, object]:
+def _settled_cup(mu: float, omega: float = 2.0, device: str = "cpu") -> tuple[PBFSolver, object]:
     """Water-like liquid of viscosity ``mu`` settled 0.5 s in a 3 cm cup, then set spinning
     about the cup's axis at ``omega`` rad/s."""
-    s = PBFSolver(1, SolverConfig(xsph_viscosity=0.0))
+    s = PBFSolver(1, SolverConfig(xsph_viscosity=0.0, device=device))
     shape = cup(0.03, 0.075, wall=0.006)
     c = s.add_container(0, shape)
     s.set_liquid(0, viscous(mu))
@@ -120,11 +120,12 @@ def _system(s: PBFSolver) -> sps.csr_matrix:
     return sps.identity(3 * n) + c * (k + sps.block_diag(list(t_block)))
 
 
-def test_the_solve_is_the_linear_system_it_states() -> None:
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.gpu, id="cuda")])
+def test_the_solve_is_the_linear_system_it_states(device: str) -> None:
     """After a step of a spinning viscous liquid (0.5 Pa·s) in a cup, the velocities the
     conjugate-gradient solve returns solve A v' = v + c T v_wall (the cup is still: v_wall =
-    0) to its tolerance: within 0.1 % of a sparse direct solve."""
-    s, _ = _settled_cup(0.5)
+    0) to its tolerance: within 0.1 % of a sparse direct solve. On CUDA too."""
+    s, _ = _settled_cup(0.5, device=device)
     s.step()
     visc = s.viscosity
     assert np.abs(visc.v_wall.numpy()).max() < 1e-4  # the cup does not move
