@@ -432,7 +432,7 @@ class FallingBall:
 
     liquid: str
     times: np.ndarray  # s since release
-    depth: np.ndarray  # m, the sphere centre's fall since release
+    fall: np.ndarray  # m, the sphere centre's fall since release
     speeds: np.ndarray  # m/s, mean downward speed over each third of the measured stretch
     closed_form: float  # m/s, falling_ball.terminal_speed for the liquid and this geometry
     reynolds: float  # of the closed form's speed, on the sphere's diameter
@@ -461,9 +461,8 @@ def falling_ball(
     is held there. The stretch measured starts a radius below the release (past the start-up)
     and ends with the sphere's centre 5 radii above the floor (nearer, the floor slows it:
     Brenner's factor is 1 + 9R/8z to first order, 1.2 there); its three thirds in time give
-    ``speeds``. The closed
-    form is Stokes' drag with the cylinder's Haberman–Sayre factor and the Schiller–Naumann
-    inertia term (:func:`pourbench.fluids.falling_ball.terminal_speed`)."""
+    ``speeds``. The closed form is Stokes' drag with the cylinder's Haberman–Sayre factor and
+    the Schiller–Naumann inertia term (:func:`pourbench.fluids.falling_ball.terminal_speed`)."""
     import mujoco
 
     from pourbench.fluids.coupling import MujocoCoupling
