@@ -60,7 +60,9 @@ class Lesson:
             else:
                 values[k] = float(rng.uniform(lo, hi))
         return liquid_profile(base).replace(
-            name=f"lesson {self.name}", viscosity_source=f"lesson {self.name}", **values
+            name=f"lesson {self.name}",
+            viscosity_source=f"drawn from lesson {self.name}'s range",
+            **values,
         )
 
 
@@ -71,8 +73,7 @@ def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
         ValueError: naming the file, lesson and key: the file is not TOML, a lesson lacks a
             range or a fraction, a range is not ``[low, high]`` of finite numbers with
             low ≤ high, a density or viscosity is not > 0 or a FleX coefficient is negative,
-            or the
-            fractions are not ≥ 0 and do not sum to 1.
+            or the fractions are not ≥ 0 and do not sum to 1.
     """
     path = Path(path) if path is not None else DEFAULT_CURRICULUM
     data = read_toml(path)
