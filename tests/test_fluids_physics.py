@@ -178,7 +178,7 @@ group's members (``test_density_scales_the_forces_and_moves_no_particle``)."""
 @pytest.fixture(scope="module")
 def held_lifts() -> dict[str, float]:
     """The held sphere's lift over Archimedes' in each of :data:`GROUP_HEADS`: radius 1.5 cm
-    (three spacings), an 8 cm tank, averaged over 2–4 s. About 25 minutes on one core."""
+    (three spacings), an 8 cm tank, averaged over 2–4 s. About 36 minutes on one core."""
     lift = held_sphere_lift(GROUP_HEADS, radius=0.015, settle=2.0, window=2.0)
     return dict(zip(GROUP_HEADS, map(float, lift), strict=True))
 
@@ -187,7 +187,7 @@ def held_lifts() -> dict[str, float]:
 @pytest.mark.parametrize("liquid", GROUP_HEADS)
 def test_a_held_sphere_feels_the_archimedes_lift(held_lifts: dict[str, float], liquid: str) -> None:
     """A sphere held still in the liquid feels its Archimedes lift ρVg within 5 %. Measured
-    0.954–1.021 over the twelve groups (docs/contact.md); with the plane's wall term alone,
+    0.966–1.033 over the 18 groups (docs/contact.md); with the plane's wall term alone,
     1.047 for water and 1.067 for Honey in a 10 cm tank."""
     assert held_lifts[liquid] == pytest.approx(1.0, abs=0.05)
 
