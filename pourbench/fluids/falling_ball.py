@@ -13,11 +13,10 @@ leave out two factors that dominate in this setup.
   applied to the whole: an approximation beyond Re ≈ 1.
 
 The marble itself is not in the thesis: a standard 15.9 mm (5/8 in) glass marble of
-2500 kg/m³ is assumed. With both corrections the thesis' honey reads 11 Pa·s, within the
-published range of honeys at 20 °C; dish soap, hand soap and hand-gel (Re ≤ 5) read
-0.7–2 Pa·s. In water, apple juice and oil the marble falls at Re of hundreds to thousands
-and had not reached its terminal speed within 8.9 cm, so the measurement says nothing about
-their viscosities, and their profiles use published values.
+2500 kg/m³ is assumed. Where the corrected fall is slow (Re of a few or less: dish soap, hand
+soap, hand-gel, honey) it gives the liquid's viscosity; in water, apple juice and oil the
+marble falls at Re in the hundreds to thousands and had not reached its terminal speed
+within 8.9 cm, so it says nothing about their viscosities (docs/viscosity.md).
 """
 
 from __future__ import annotations
@@ -34,8 +33,6 @@ MARBLE_DENSITY = 2500.0
 """kg/m³: soda-lime glass (assumed)."""
 CYLINDER_RADIUS = math.sqrt(50e-6 / 0.089 / math.pi)
 """m: the measuring cylinder's bore, from its 50 ml over 8.9 cm (thesis §3.3)."""
-STOKES_LIMIT_RE = 10.0
-"""Largest Reynolds number at which :func:`marble_viscosity` is taken as a measurement."""
 
 
 def haberman_sayre(ratio: float) -> float:
@@ -46,6 +43,18 @@ def haberman_sayre(ratio: float) -> float:
     num = 1.0 - 0.75857 * lam**5
     den = 1.0 - 2.1050 * lam + 2.0865 * lam**3 - 1.7068 * lam**5 + 0.72603 * lam**6
     return num / den
+
+
+def _unbalanced(
+    mu: float, speed: float, rho_f: float, radius: float, rho_s: float, bore_radius: float
+) -> float:
+    """Drag less weight less buoyancy, N, of a sphere falling at ``speed`` on the cylinder's
+    axis: Stokes' drag × the wall factor × (1 + 0.15 Re^0.687)."""
+    re = rho_f * speed * 2.0 * radius / mu
+    drag = 6.0 * math.pi * mu * radius * speed * haberman_sayre(radius / bore_radius)
+    return drag * (1.0 + 0.15 * re**0.687) - 4.0 / 3.0 * math.pi * radius**3 * GRAVITY * (
+        rho_s - rho_f
+    )
 
 
 def marble_viscosity(
@@ -59,14 +68,8 @@ def marble_viscosity(
     ``marble_density`` (kg/m³) falls steadily at ``speed`` (m/s) on the axis of a cylinder of
     ``bore_radius`` (m), and the Reynolds number of that fall (sphere diameter). Weight less
     buoyancy balances Stokes' drag × the wall factor × (1 + 0.15 Re^0.687)."""
-    wall = haberman_sayre(radius / bore_radius)
-    net = 4.0 / 3.0 * math.pi * radius**3 * GRAVITY * (marble_density - liquid_density)
-
-    def imbalance(mu: float) -> float:
-        re = liquid_density * speed * 2.0 * radius / mu
-        return 6.0 * math.pi * mu * radius * speed * wall * (1.0 + 0.15 * re**0.687) - net
-
-    mu = brentq(imbalance, 1e-9, 1e6, xtol=1e-12, rtol=1e-10)
+    args = (speed, liquid_density, radius, marble_density, bore_radius)
+    mu = brentq(lambda m: _unbalanced(m, *args), 1e-9, 1e6, xtol=1e-12, rtol=1e-10)
     return mu, liquid_density * speed * 2.0 * radius / mu
 
 
@@ -80,12 +83,6 @@ def terminal_speed(
     """The inverse of :func:`marble_viscosity`: the steady speed (m/s) of a sphere falling
     on the axis of a cylinder through a liquid of dynamic ``viscosity`` (Pa·s), and its
     Reynolds number."""
-    wall = haberman_sayre(radius / bore_radius)
-    net = 4.0 / 3.0 * math.pi * radius**3 * GRAVITY * (marble_density - liquid_density)
-
-    def imbalance(speed: float) -> float:
-        re = liquid_density * speed * 2.0 * radius / viscosity
-        return 6.0 * math.pi * viscosity * radius * speed * wall * (1.0 + 0.15 * re**0.687) - net
-
-    speed = brentq(imbalance, 0.0, 1e3, xtol=1e-12, rtol=1e-10)
+    rest = (liquid_density, radius, marble_density, bore_radius)
+    speed = brentq(lambda v: _unbalanced(viscosity, v, *rest), 0.0, 1e3, xtol=1e-12, rtol=1e-10)
     return speed, liquid_density * speed * 2.0 * radius / viscosity
