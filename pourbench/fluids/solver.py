@@ -654,7 +654,8 @@ class PBFSolver:
         ``calibration_dt`` and rescaled to ``dt`` (ratio r = dt / calibration_dt):
 
         - velocity relaxations, rescaled as 1 − (1 − f)^r, the same relaxation per second:
-          XSPH viscosity's toward the neighbours' mean (``viscosity_frac``, κν / (1 + κν)) and
+          XSPH viscosity's toward the neighbours' mean (``viscosity_frac``, κν / (1 + κν), ν the
+          FleX coefficient, or ``xsph_viscosity`` for a liquid with a physical viscosity) and
           particle friction's share of the tangential relative velocity removed
           (``friction_frac``, 0.1 per unit, at most 1);
         - adhesion, which acts as a force. Its pull closes a share of the gap to a surface
