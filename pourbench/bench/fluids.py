@@ -26,11 +26,11 @@ from pourbench.bench.fluids_viscosity import (
     BALL_COLUMNS,
     COST_COLUMNS,
     falling_ball_check,
+    timed_pour,
     viscosity_cost,
 )
 from pourbench.envs.core import default_solver_config
 from pourbench.fluids.params import liquid_profile
-from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
 from pourbench.fluids.solver import PBFSolver, SolverConfig
 from pourbench.fluids.validation import (
     MARTIN_MOYCE,
@@ -170,20 +170,6 @@ HOLD_COLUMNS = [
 ]
 
 
-def _pour_steps(liquid: str, config: SolverConfig, seconds: float) -> tuple[float, np.ndarray]:
-    """Seconds of solver steps, and each step's iterations, of a 200 g pour of ``liquid``
-    (the tilt schedule of the validation pours) at ``config``."""
-    scene = two_cup_scene(liquid, 200.0, config=config)
-    wall, its = 0.0, []
-    while scene.solver.time < seconds - 1e-9:
-        scene.set_tilt(tilt_schedule(scene.solver.time))
-        t0 = time.perf_counter()
-        scene.step()
-        wall += time.perf_counter() - t0
-        its.append(scene.solver.iterations_used()[0])
-    return wall, np.array(its)
-
-
 def holding_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, Any]]:
     """What the extra iterations of ``SolverConfig.max_density_error`` cost: a water and a
     honey pour at Pour-v0's settings, each timed against the same pour on its fixed
@@ -198,8 +184,8 @@ def holding_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, An
         print(f"fluids: holding cost, {liquid} pour at Pour-v0's settings…", file=sys.stderr)
         times: dict[str, list[float]] = {"fixed": [], "adaptive": []}
         for _ in range(2):
-            times["fixed"].append(_pour_steps(liquid, fixed, seconds)[0])
-            wall, its = _pour_steps(liquid, base, seconds)
+            times["fixed"].append(timed_pour(liquid, fixed, seconds)[0])
+            wall, its, _ = timed_pour(liquid, base, seconds)
             times["adaptive"].append(wall)
         n = len(its)
         fixed_ms, ms = 1e3 * min(times["fixed"]) / n, 1e3 * min(times["adaptive"]) / n

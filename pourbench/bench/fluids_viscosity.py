@@ -50,19 +50,23 @@ BALL_COLUMNS = [
 ]
 
 
-def _pour(liquid: Any, config: SolverConfig, seconds: float) -> tuple[float, np.ndarray]:
-    """Seconds of solver steps of a 200 g pour (the validation pours' tilt), and each step's
-    viscous conjugate-gradient iterations (empty without the solve)."""
+def timed_pour(
+    liquid: Any, config: SolverConfig, seconds: float
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """Seconds of solver steps of a 200 g pour of ``liquid`` (the validation pours' tilt) at
+    ``config``, and each step's density iterations and viscous conjugate-gradient iterations
+    (the latter empty without the solve)."""
     scene = two_cup_scene(liquid, 200.0, config=config)
-    s, wall, its = scene.solver, 0.0, []
+    s, wall, density_its, viscous_its = scene.solver, 0.0, [], []
     while s.time < seconds - 1e-9:
         scene.set_tilt(tilt_schedule(s.time))
         t0 = time.perf_counter()
         scene.step()
         wall += time.perf_counter() - t0
+        density_its.append(s.iterations_used()[0])
         if s.viscosity is not None:
-            its.append(int(s.viscosity.iterations.numpy()[0]))
-    return wall, np.array(its)
+            viscous_its.append(int(s.viscosity.iterations.numpy()[0]))
+    return wall, np.array(density_its), np.array(viscous_its)
 
 
 def viscosity_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, Any]]:
@@ -78,8 +82,8 @@ def viscosity_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, 
         flex = shipped.replace(viscosity_pa_s=None)
         times: dict[str, list[float]] = {"flex": [], "physical": []}
         for _ in range(2):
-            times["flex"].append(_pour(flex, cfg, seconds)[0])
-            wall, its = _pour(shipped, cfg, seconds)
+            times["flex"].append(timed_pour(flex, cfg, seconds)[0])
+            wall, _, its = timed_pour(shipped, cfg, seconds)
             times["physical"].append(wall)
         steps = round(seconds / cfg.dt)
         flex_ms, ms = 1e3 * min(times["flex"]) / steps, 1e3 * min(times["physical"]) / steps
