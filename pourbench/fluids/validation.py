@@ -494,9 +494,10 @@ def falling_ball(
             datas[w].qpos[0], datas[w].qvel[0] = at[w], 0.0
             mujoco.mj_kinematics(model, datas[w])
 
-    while s.time < settle - 1e-9:
-        coupling.step()
-        hold(range(n), np.zeros(n))
+    while s.time < settle - 1e-9:  # MuJoCo stands still: the sphere is held where it is
+        coupling.sync()
+        s.step()
+        coupling.apply()
     start = s.time
     times, falls = [0.0], [np.zeros(n)]
     lowest = z0 - floor - 2.0 * radius  # a fall that ends a radius above the floor
