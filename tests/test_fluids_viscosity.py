@@ -17,24 +17,8 @@ from pourbench.errors import InvalidParameterError
 from pourbench.fluids import viscosity as V
 from pourbench.fluids.params import liquid_profile
 from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.validation import newtonian
 from pourbench.geometry.shapes import cup
-
-PURE = {
-    "viscosity": 0.0,
-    "cohesion": 0.0,
-    "staticFriction": 0.0,
-    "dynamicFriction": 0.0,
-    "particleFriction": 0.0,
-    "adhesion": 0.0,
-    "surfaceTension": 0.0,
-    "vorticityConfinement": 0.0,
-}
-"""FleX terms off: with ``SolverConfig(xsph_viscosity=0)`` the liquid's only velocity filter is
-the physical viscosity."""
-
-
-def viscous(mu: float):
-    return liquid_profile("water").replace(viscosity_cp=None, viscosity_pa_s=mu, **PURE)
 
 
 @wp.kernel
@@ -115,8 +99,8 @@ def _settled_cup(mu: float, omega: float = 2.0, device: str = "cpu") -> tuple[PB
     s = PBFSolver(1, SolverConfig(xsph_viscosity=0.0, device=device))
     shape = cup(0.03, 0.075, wall=0.006)
     c = s.add_container(0, shape)
-    s.set_liquid(0, viscous(mu))
-    s.fill(0, c, 1000.0 * math.pi * 0.03**2 * 0.045 * 1e3, viscous(mu))
+    s.set_liquid(0, newtonian(mu))
+    s.fill(0, c, 1000.0 * math.pi * 0.03**2 * 0.045 * 1e3, newtonian(mu))
     s.step(120)
     x = s.positions()
     spin = np.stack([-omega * x[:, 1], omega * x[:, 0], 0.0 * x[:, 0]], axis=1)
@@ -192,7 +176,7 @@ def test_viscosity_keeps_momentum_and_spares_rigid_motion() -> None:
     kept = {}
     for name, field in fields.items():
         s = PBFSolver(1, cfg)
-        s.set_liquid(0, viscous(2.0))
+        s.set_liquid(0, newtonian(2.0))
         s.add_particles(0, x, field(x))
         s.step()
         visc = s.viscosity
@@ -258,7 +242,7 @@ def test_a_light_sphere_in_a_thick_liquid_sinks_steadily() -> None:
     coupling = MujocoCoupling(s, model, datas)
     coupling.add_geoms(["ball"])
     for w, mu in enumerate(mus):
-        s.set_liquid(w, viscous(mu))
+        s.set_liquid(w, newtonian(mu))
         liquid_g = 1000.0 * (math.pi * bore**2 * depth - 4.0 / 3.0 * math.pi * radius**3) * 1e3
         s.fill(w, s.add_container(w, shape), liquid_g)
     for _ in range(120):  # settle 0.5 s, MuJoCo standing still: the sphere is held

@@ -25,7 +25,9 @@ from pourbench.bench.fluids_baseline import BaselinePBF
 from pourbench.bench.fluids_viscosity import (
     BALL_COLUMNS,
     COST_COLUMNS,
+    SETTLING_COLUMNS,
     falling_ball_check,
+    settling_check,
     timed_pour,
     viscosity_cost,
 )
@@ -335,6 +337,7 @@ def run(args: argparse.Namespace) -> int:
     hold = [] if args.quick else holding_cost(checks_device)
     visc_cost = [] if args.quick else viscosity_cost(checks_device)
     ball, ball_note = ([], "") if args.quick else falling_ball_check(checks_device)
+    settling, settling_note = ([], "") if args.quick else settling_check(checks_device)
     body = "\n".join(
         [
             "Dam-break block in a tank (width a, height 2a, at most 25 cm tall: larger blocks "
@@ -385,6 +388,12 @@ def run(args: argparse.Namespace) -> int:
             ball_note,
             "",
             markdown_table(ball, BALL_COLUMNS) if ball else "",
+            "",
+            f"## Settling against the closed form ({checks_device})" if settling else "",
+            "",
+            settling_note,
+            "",
+            markdown_table(settling, SETTLING_COLUMNS) if settling else "",
         ]
     )
     if not args.no_write:
@@ -399,6 +408,7 @@ def run(args: argparse.Namespace) -> int:
                 "holding_cost": hold,
                 "viscosity_cost": visc_cost,
                 "falling_ball": ball,
+                "settling": settling,
             }
             if checks
             else None,

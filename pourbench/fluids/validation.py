@@ -443,6 +443,39 @@ class FallingBall:
         return float(self.speeds[1:].mean())
 
 
+SETTLING_VISCOSITIES = (0.05, 0.5, 5.0, 50.0)
+"""Pa·s: the four decades over which a settling sphere is checked against the closed form."""
+
+FLEX_VELOCITY_TERMS = (
+    "viscosity",
+    "cohesion",
+    "surfaceTension",
+    "adhesion",
+    "staticFriction",
+    "dynamicFriction",
+    "particleFriction",
+    "vorticityConfinement",
+)
+"""A profile's FleX terms that change velocities (XSPH, cohesion, surface tension, adhesion,
+friction, vorticity confinement)."""
+
+
+def newtonian(viscosity_pa_s: float, density: float = 1000.0) -> LiquidProfile:
+    """A liquid whose only velocity filter is its physical viscosity (Pa·s) when run with
+    ``SolverConfig(xsph_viscosity=0)``: water's other parameters, every FleX velocity term
+    off."""
+    from pourbench.fluids.params import liquid_profile
+
+    off = dict.fromkeys(FLEX_VELOCITY_TERMS, 0.0)
+    return liquid_profile("water").replace(
+        name=f"newtonian {viscosity_pa_s:g} Pa·s",
+        density=density,
+        viscosity_cp=None,
+        viscosity_pa_s=viscosity_pa_s,
+        **off,
+    )
+
+
 def falling_ball(
     liquids: Sequence[str | LiquidProfile],
     radius: float = 0.015,
