@@ -290,3 +290,33 @@ def test_left_wrist_reads_settled_liquid_in_the_tray_within_2_g(grams: float) ->
     inside = info["poured_g"]
     assert inside == pytest.approx(mass, abs=1.0)  # settled in the tray
     assert np.mean(readings[-10:]) == pytest.approx(inside, abs=2.0)
+
+
+def test_a_robot_pour_is_recorded_for_rerun(tmp_path) -> None:
+    """``record_path``: a frame per reset and step of the particles, every robot geom's pose,
+    the end-effector's target and pose, the arm's actual (and, per step, commanded) joint
+    velocities and the weight raw and filtered; moved into place on close."""
+    from collections import Counter
+
+    from rerun.chunk import RrdReader
+
+    path = tmp_path / "robot.rrd"
+    env = RobotPourEnv(robot="movo", liquid="water", record_path=str(path))
+    env.reset(seed=0, options={"target_g": 100.0})
+    for _ in range(3):
+        env.step(np.array([1.0, 0.0]))
+    geoms = len(env._recorder.geoms)
+    joints = env.kin.joint_names
+    env.close()
+    assert not path.with_name("robot.rrd.partial").exists()
+    frames: Counter = Counter()
+    for chunk in RrdReader(path).stream():
+        if not chunk.is_static:
+            frames[chunk.entity_path] += chunk.num_rows
+    for entity in ("world/liquid", "world/ee/target", "world/ee/actual", "plots/weight_g/raw"):
+        assert frames["/" + entity] == 4, entity
+    assert frames["/plots/weight_g/filtered"] == 4
+    assert frames[f"/plots/joint_velocity/{joints[0]}/actual"] == 4
+    assert frames[f"/plots/joint_velocity/{joints[0]}/commanded"] == 3
+    moved = [e for e in frames if e.startswith("/world/robot/")]
+    assert geoms > 20 and len(moved) == geoms and all(frames[e] == 4 for e in moved)

@@ -51,8 +51,9 @@ goes through Pour-v0's batched functions (handler, filter, reward, liquid accoun
 batch only needs the rigid step to be batched too. What is *not* batched yet: the planner
 call (one NMPC/mink solve per world), the MuJoCo substeps (``mj_step`` on one ``MjData``) and
 the coupling's per-world pose sync; a vector env would need a batched MuJoCo path (MuJoCo
-Warp, or a threaded rollout) and one planner per world. There is no vector env and no
-rerun recording yet; ``render_mode="rgb_array"`` draws the robot, containers and liquid.
+Warp, or a threaded rollout) and one planner per world. There is no vector env.
+``render_mode="rgb_array"`` draws the robot, containers and liquid; ``record_path`` writes a
+rerun recording of the episode.
 """
 
 from __future__ import annotations
@@ -205,6 +206,11 @@ class RobotPourEnv(gym.Env):
         settings: robot-in-the-loop settings.
         render_mode: None or "rgb_array" (MuJoCo's offscreen renderer: the robot, the
             containers, translucent, and the liquid's particles as spheres).
+        record_path: if given, a rerun ``.rrd`` recording of the episode, one frame per
+            reset and step (:mod:`pourbench.envs.robot_record`: particles, bodies, the
+            end-effector's target against its pose, joint velocities, the weight reading
+            raw and filtered); written to ``<record_path>.partial`` and moved into place by
+            :meth:`close`.
         **kwargs: fields of :class:`~pourbench.envs.core.PourConfig`. The pouring container
             is the first of ``container_set`` (the training cup by default).
 
@@ -222,6 +228,7 @@ class RobotPourEnv(gym.Env):
         planner: str = "nmpc",
         settings: RobotSettings | None = None,
         render_mode: str | None = None,
+        record_path: str | None = None,
         **kwargs: Any,
     ) -> None:
         if not isinstance(robot, str) or robot not in ROBOTS:
@@ -337,6 +344,11 @@ class RobotPourEnv(gym.Env):
         self.planner_time_s = 0.0  # wall time of the last planner call, s
         self._was_reset = False
         self._done = False
+        self._recorder = None
+        if record_path is not None:
+            from pourbench.envs.robot_record import RobotRecorder
+
+            self._recorder = RobotRecorder(record_path, self)
 
     def set_lesson(self, k: int) -> None:
         """Draw liquids from curriculum lesson ``k`` at later resets (when ``liquid`` is None)."""
@@ -489,6 +501,8 @@ class RobotPourEnv(gym.Env):
         info = self._info(self._measure())
         info.update(collided=False, planner_failed=False, sim_diverged=False, is_success=False)
         info["average_error_g"] = float(self.history.average()[0])
+        if self._recorder is not None:
+            self._recorder.log()
         return self._observe(self.history.average()), info
 
     def _ik(
@@ -619,6 +633,8 @@ class RobotPourEnv(gym.Env):
             joint_velocity=u.copy(),
             force_raw_n=float(self.force_n),
         )
+        if self._recorder is not None:
+            self._recorder.log(commanded=u)
         return self._observe(avg), float(reward[0]), bool(terminated), bool(truncated), out
 
     # ------------------------------------------------------------------ render
@@ -658,6 +674,9 @@ class RobotPourEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        if self._recorder is not None:
+            self._recorder.close()
+            self._recorder = None
 
     # ------------------------------------------------------------------ read
 
