@@ -7,8 +7,8 @@ body (summed in the collision kernels) is written to ``xfrc_applied`` for the ne
 a MuJoCo force sensor under a container reads the liquid's weight and the stream's impacts.
 
 That explicit exchange is unstable for a light body in a thick liquid: a drag b on a body of
-mass m, applied a step late, overshoots once b dt / m > 2 (a 3 cm glass sphere in 50 Pa·s is
-at 7.5). So the viscous part of the drag is integrated implicitly: with the solver's drag
+mass m, applied a step late, overshoots once b dt / m > 2 (7.5 for a glass sphere of 1 cm
+radius in 50 Pa·s). So the viscous part of the drag is integrated implicitly: with the solver's drag
 matrix B of each body (:meth:`PBFSolver.body_drag`, about its CoM) and the body Jacobian J,
 MuJoCo's velocity change Δ over the step becomes the solution of (M + dt Jᵀ B J) Δ' = M Δ
 (M the joint-space inertia), and the positions follow the changed velocities. Where the
