@@ -134,6 +134,20 @@ def test_env_bench_runs_past_an_episode_end() -> None:
     assert 0.3 < row["g_per_particle"] < 0.7  # 8 mm particles of water, about 0.5 g each
 
 
+def test_env_bench_times_the_robot_beside_pour_v0() -> None:
+    """A PourRobot-v0 row: the robot's and Pour-v0's rates from the same alternating run, the
+    planner's share, and the cup's fill (8 mm particles of water, about 0.5 g each)."""
+    from pourbench.bench.env_robot import robot_case
+
+    row = robot_case("panda", "mink", budget_s=0.0, min_steps=2)
+    assert (row["robot"], row["planner"]) == ("panda", "mink")
+    assert row["ratio_to_pour_v0"] == pytest.approx(
+        row["env_steps_per_s"] / row["pour_v0_env_steps_per_s"]
+    )
+    assert 0.0 < row["planner_ms_per_step"] < 1e3 / row["env_steps_per_s"]
+    assert 150 < row["particles"] < 700
+
+
 def _pair(folder) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
 

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from pourbench.bench._report import devices, markdown_table, report_stem, write_report
+from pourbench.bench.env_robot import ROBOT_CASES, ROBOT_COLUMNS, robot_case
 
 COLUMNS = (
     "front_end",
@@ -188,6 +189,11 @@ def run(args: argparse.Namespace) -> int:
         for workers in workers_for(front, dev):
             print(f"env: {front} {dev} {n} world(s), {workers} worker(s)…", file=sys.stderr)
             rows.append(run_case(front, dev, n, workers=workers))
+    robot_rows = []
+    if not args.quick and choice != "cuda":
+        for robot, planner in ROBOT_CASES:
+            print(f"env: PourRobot-v0, {robot}, {planner}…", file=sys.stderr)
+            robot_rows.append(robot_case(robot, planner))
     body = "\n".join(
         [
             "`pourbench/Pour-v0` with its defaults: 8 mm particles (about 0.5 g of liquid "
@@ -206,6 +212,17 @@ def run(args: argparse.Namespace) -> int:
             "",
             f"Targets: ≥ {TARGET_SINGLE_CPU:g} steps/s for one CPU env, ≥ "
             f"{TARGET_VECTOR_CPU:g} for 64 worlds on 2 CPU workers.",
+            "",
+            "## PourRobot-v0 (cpu)" if robot_rows else "",
+            "",
+            "One `pourbench/PourRobot-v0` (water, 100 g) with each robot and planner, and a "
+            "single Pour-v0 env (water, 100 g) stepped in the same process, alternating step "
+            "by step (`pourbench/bench/env_robot.py`). `planner_ms_per_step`: the planner's "
+            "own solve time in a step."
+            if robot_rows
+            else "",
+            "",
+            markdown_table(robot_rows, ROBOT_COLUMNS) if robot_rows else "",
         ]
     )
     if not args.no_write:
@@ -215,9 +232,10 @@ def run(args: argparse.Namespace) -> int:
             out=args.out,
             title="Pour-v0: environment throughput",
             body_md=body,
+            extra={"robot": robot_rows} if robot_rows else None,
         )
     if args.json:
-        print(json.dumps({"suite": "env", "rows": rows}))
+        print(json.dumps({"suite": "env", "rows": rows, "robot": robot_rows}))
     else:
         print(markdown_table(rows, COLUMNS))
     return 0
