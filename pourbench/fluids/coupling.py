@@ -8,10 +8,11 @@ a MuJoCo force sensor under a container reads the liquid's weight and the stream
 
 That explicit exchange is unstable for a light body in a thick liquid: a drag b on a body of
 mass m, applied a step late, overshoots once b dt / m > 2 (7.5 for a glass sphere of 1 cm
-radius in 50 Pa·s). So the viscous part of the drag is integrated implicitly: with the solver's drag
-matrix B of each body (:meth:`PBFSolver.body_drag`, about its CoM) and the body Jacobian J,
-MuJoCo's velocity change Δ over the step becomes the solution of (M + dt Jᵀ B J) Δ' = M Δ
-(M the joint-space inertia), and the positions follow the changed velocities. Where the
+radius in 50 Pa·s). So :meth:`MujocoCoupling.step` integrates the viscous part of the drag
+implicitly: with the solver's drag matrix B of each body (:meth:`PBFSolver.body_drag`, about
+its CoM) and the body Jacobian J, MuJoCo's velocity change Δ over the step becomes the
+solution of (M + dt Jᵀ B J) Δ' = M Δ (M the joint-space inertia), and the positions follow
+the changed velocities. Where the
 liquid's reaction already balances the body's other forces (Δ = 0: at rest, at terminal
 speed) nothing changes; a change of speed is spread over the liquid the body drags along.
 Hand-written: MuJoCo integrates its own damping implicitly, but not a wrench applied from
