@@ -43,12 +43,15 @@ def test_a_stopped_run_resumes_from_its_log(tmp_path, monkeypatch) -> None:
         return {"error_g": 2.0}
 
     monkeypatch.setattr(transfer, "episode", fake_episode)
-    results = transfer.run_episodes(("water",), (50.0,), 1, "pd", log)
+    results = transfer.run_episodes(("water",), (50.0,), 1, "pd", log, sha)
     assert ran == [("movo", "water", 50.0, 0), ("panda", "water", 50.0, 0)]
     assert results[first] == {"error_g": 1.5}
     assert len(log.read_text().splitlines()) == 3
     ran.clear()
-    transfer.run_episodes(("water",), (50.0,), 1, "pd", log)
+    transfer.run_episodes(("water",), (50.0,), 1, "pd", log, "another commit")
+    assert len(ran) == 3  # another commit's code runs every episode again
+    ran.clear()
+    transfer.run_episodes(("water",), (50.0,), 1, "pd", log, sha)
     assert ran == []
 
 

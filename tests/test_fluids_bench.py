@@ -197,6 +197,20 @@ def test_a_report_whose_markdown_path_is_a_folder_keeps_its_json(tmp_path) -> No
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.json", "s.md"]
 
 
+def test_a_long_run_stamps_the_sha_it_started_at(tmp_path) -> None:
+    """``git_sha_at_start``: a run that commits were made during is stamped with the code it
+    ran, in both files; without it, the SHA at writing."""
+    from pourbench.bench._report import git_sha, write_report
+
+    json_path, md_path = write_report(
+        "s", [], out=tmp_path, title="t", body_md="b", git_sha_at_start="abc1234"
+    )
+    assert json.loads(json_path.read_text())["git_sha"] == "abc1234"
+    assert "- git SHA: `abc1234`" in md_path.read_text()
+    json_path, _ = write_report("s", [], out=tmp_path, title="t", body_md="b")
+    assert json.loads(json_path.read_text())["git_sha"] == git_sha()
+
+
 def test_report_json_is_strict_with_numpy_values_and_nan_as_null(tmp_path) -> None:
     """NaN is written as null (a missing value, as rows write None), ±inf as "inf" / "-inf"
     (no obstacle: an infinite clearance, not a missing one); NumPy values as plain numbers."""

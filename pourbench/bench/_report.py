@@ -96,6 +96,7 @@ def write_report(
     title: str,
     body_md: str,
     extra: dict[str, Any] | None = None,
+    git_sha_at_start: str | None = None,
 ) -> tuple[Path, Path]:
     """Write ``<out>/<suite>.json`` (rows + provenance) and ``<out>/<suite>.md``.
 
@@ -113,6 +114,8 @@ def write_report(
         title: markdown heading.
         body_md: the suite's tables and notes in markdown (provenance is added here).
         extra: more top-level JSON fields.
+        git_sha_at_start: the SHA a long run started at (:func:`git_sha` then), stamped in
+            place of the SHA at writing, which later commits during the run would move.
 
     Raises:
         InvalidParameterError: a bad suite name, rows that are not a list of dicts, a title
@@ -142,6 +145,8 @@ def write_report(
     out = check_output_folder(out)
     outputs = [AtomicOutput(out / f"{suite}.json"), AtomicOutput(out / f"{suite}.md")]
     prov = provenance()
+    if git_sha_at_start is not None:
+        prov["git_sha"] = git_sha_at_start
     gpu = accelerator(rows)
     if gpu:
         prov["accelerator"] = gpu

@@ -116,11 +116,16 @@ def _load_log(path: Path) -> dict[str, dict]:
 
 
 def run_episodes(
-    liquids: tuple[str, ...], targets: tuple[float, ...], pours: int, policy: str, log: Path
+    liquids: tuple[str, ...],
+    targets: tuple[float, ...],
+    pours: int,
+    policy: str,
+    log: Path,
+    sha: str,
 ) -> dict[tuple[str, str, float, int], dict]:
-    """Every (env, liquid, target, seed) episode, taken from ``log`` where this SHA and policy
-    ran it already, run (with a progress bar) and appended to it otherwise."""
-    sha = git_sha()
+    """Every (env, liquid, target, seed) episode, taken from ``log`` where the code at git SHA
+    ``sha`` and ``policy`` ran it already, run (with a progress bar) and appended to it
+    otherwise."""
     done = _load_log(log)
     jobs = [
         (env, liquid, target, seed)
@@ -188,8 +193,9 @@ def run(args: argparse.Namespace) -> int:
     targets = (100.0,) if quick else TARGETS_G
     pours = 1 if quick else POURS
     policy = policy_name()
+    sha = git_sha()
     log = LOG.with_name("episodes-quick.jsonl") if quick else LOG
-    results = run_episodes(liquids, targets, pours, policy, log)
+    results = run_episodes(liquids, targets, pours, policy, log, sha)
     rows = table(results, liquids, targets, pours)
     mean_of = ("thesis_movo_g", "pour_v0_g", "movo_g", "panda_g")
     means = {c: float(np.mean([r[c] for r in rows])) for c in mean_of}
@@ -225,6 +231,7 @@ def run(args: argparse.Namespace) -> int:
             title="Table 6.4 in simulation: a Pour-v0 policy with the robot in the loop",
             body_md=body,
             extra={"policy": policy, "pours": pours},
+            git_sha_at_start=sha,
         )
     if args.json:
         print(json.dumps({"suite": "transfer", "policy": policy, "rows": rows}))
