@@ -140,6 +140,26 @@ def _check_data(model: mujoco.MjModel, data: mujoco.MjData, *, finite: bool = Fa
         raise InvalidParameterError("data has non-finite geom poses (NaN qpos?); nothing recorded")
 
 
+def local_meshes(
+    model: mujoco.MjModel, groups: Sequence[int] = (0, 1, 2)
+) -> Iterator[tuple[int, str, np.ndarray, np.ndarray, np.ndarray]]:
+    """(geom id, "body/geom" name, vertices in the geom's frame, triangles, rgba) of every
+    geom in ``groups`` that has a mesh (:func:`geom_mesh`)."""
+    for g in range(model.ngeom):
+        if model.geom_group[g] not in groups:
+            continue
+        mesh = geom_mesh(model, g)
+        if mesh is None:
+            continue
+        verts, tris = mesh
+        body = model.body(model.geom_bodyid[g]).name or f"body_{model.geom_bodyid[g]}"
+        name = model.geom(g).name or f"geom_{g}"
+        rgba = model.geom_rgba[g]
+        if model.geom_matid[g] >= 0:
+            rgba = model.mat_rgba[model.geom_matid[g]]
+        yield g, f"{body}/{name}", verts, tris, rgba
+
+
 def world_meshes(
     model: mujoco.MjModel, data: mujoco.MjData, groups: Sequence[int] = (0, 1, 2)
 ) -> Iterator[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
@@ -154,20 +174,9 @@ def world_meshes(
         isinstance(x, int | np.integer) and not isinstance(x, bool) for x in groups
     ):
         raise InvalidParameterError(f"groups must be a sequence of integers, got {groups!r}")
-    for g in range(model.ngeom):
-        if model.geom_group[g] not in groups:
-            continue
-        mesh = geom_mesh(model, g)
-        if mesh is None:
-            continue
-        verts, tris = mesh
+    for g, name, verts, tris, rgba in local_meshes(model, groups):
         world = data.geom_xpos[g] + verts @ data.geom_xmat[g].reshape(3, 3).T
-        body = model.body(model.geom_bodyid[g]).name or f"body_{model.geom_bodyid[g]}"
-        name = model.geom(g).name or f"geom_{g}"
-        rgba = model.geom_rgba[g]
-        if model.geom_matid[g] >= 0:
-            rgba = model.mat_rgba[model.geom_matid[g]]
-        yield f"scene/{body}/{name}", world, tris, rgba
+        yield f"scene/{name}", world, tris, rgba
 
 
 def record(model: mujoco.MjModel, data: mujoco.MjData, path: str | Path) -> Path:

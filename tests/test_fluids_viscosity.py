@@ -216,11 +216,10 @@ def test_centipoise_alone_sets_the_viscosity_in_pa_s() -> None:
 def test_a_light_sphere_in_a_thick_liquid_sinks_steadily() -> None:
     """A 1 cm glass sphere (35 g) on a slide joint, released on the axis of a 3 cm cup of
     liquid of 10 and 50 Pa·s. Its viscous drag b, applied a step late, would overshoot
-    (b dt / m about 1.5 and 7.5: at 10 Pa·s the sphere swung at up to ±0.9 m/s); integrated
-    implicitly (MujocoCoupling), the sphere sinks and never rises, never faster than Stokes'
-    speed in an unbounded liquid, and in 10 Pa·s at the closed form's speed (Stokes with the
-    cylinder's Haberman–Sayre factor) within 25 % over the last 0.1 s (docs/viscosity.md has
-    50 Pa·s' speed)."""
+    (b dt / m about 1.5 and 7.5); integrated implicitly (MujocoCoupling), the sphere sinks
+    and never rises, never faster than Stokes' speed in an unbounded liquid, and in 10 Pa·s
+    at the closed form's speed (Stokes with the cylinder's Haberman–Sayre factor) within
+    25 % over the last 0.1 s (docs/viscosity.md has 50 Pa·s' speed)."""
     import mujoco
 
     from pourbench.fluids.coupling import MujocoCoupling

@@ -18,7 +18,7 @@ import numpy as np
 import rerun as rr
 
 from pourbench.fluids.record import FluidRecorder
-from pourbench.view import geom_mesh
+from pourbench.view import local_meshes
 
 if TYPE_CHECKING:
     from pourbench.envs.robot_pour import RobotPourEnv
@@ -46,16 +46,8 @@ class RobotRecorder:
         m = env.model
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self.geoms: list[tuple[int, str]] = []
-        for g in range(m.ngeom):
-            if m.geom_group[g] not in groups:
-                continue
-            mesh = geom_mesh(m, g)
-            if mesh is None:
-                continue
-            verts, tris = mesh
-            rgba = m.mat_rgba[m.geom_matid[g]] if m.geom_matid[g] >= 0 else m.geom_rgba[g]
-            body = m.body(m.geom_bodyid[g]).name or f"body_{m.geom_bodyid[g]}"
-            entity = f"world/robot/{body}/{m.geom(g).name or f'geom_{g}'}"
+        for g, name, verts, tris, rgba in local_meshes(m, groups):
+            entity = f"world/robot/{name}"
             colour = (np.clip(rgba, 0.0, 1.0) * 255).astype(np.uint8)
             mesh3d = rr.Mesh3D(vertex_positions=verts, triangle_indices=tris, albedo_factor=colour)
             self.rec.log(entity, mesh3d, static=True)
