@@ -83,9 +83,6 @@ class RobotRecorder:
         rec.log("plots/weight_g/raw", rr.Scalars(env.weight_g_true()))
         rec.log("plots/weight_g/filtered", rr.Scalars(float(env.filter.value_g[0])))
 
-    def discard(self) -> None:
-        self.fluid.discard()
-
     def close(self) -> Path:
         """Finish the recording and move it into place; returns its path."""
         return self.fluid.close()

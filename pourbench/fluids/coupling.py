@@ -12,9 +12,9 @@ radius in 50 Pa·s). So :meth:`MujocoCoupling.step` integrates the viscous part 
 implicitly: with the solver's drag matrix B of each body (:meth:`PBFSolver.body_drag`, about
 its CoM) and the body Jacobian J, MuJoCo's velocity change Δ over the step becomes the
 solution of (M + dt Jᵀ B J) Δ' = M Δ (M the joint-space inertia), and the positions follow
-the changed velocities. Where the
-liquid's reaction already balances the body's other forces (Δ = 0: at rest, at terminal
-speed) nothing changes; a change of speed is spread over the liquid the body drags along.
+the changed velocities. Where the liquid's reaction already balances the body's other forces
+(Δ = 0: at rest, at terminal speed) nothing changes; a change of speed is spread over the
+liquid the body drags along.
 Hand-written: MuJoCo integrates its own damping implicitly, but not a wrench applied from
 outside.
 """

@@ -1147,7 +1147,6 @@ class Colliders:
     bound: wp.array(dtype=float)  # radius about the local origin that holds the shape
     force: wp.array2d(dtype=wp.int64)  # per slot, in WRENCH_UNIT
     torque: wp.array2d(dtype=wp.int64)
-    drag: wp.array2d(dtype=wp.int64)  # per slot, the viscous drag matrix (DRAG_ENTRIES)
 
 
 @wp.func
@@ -1274,11 +1273,6 @@ def predict(
 WRENCH_UNIT = wp.constant(1.0e-9)
 """Body reactions are summed as integers of this many N (and N·m): integer sums do not
 depend on the order in which threads add, so coupled runs are reproducible on CUDA too."""
-
-
-DRAG_ENTRIES = 21
-"""Upper triangle, row by row, of a body's symmetric 6 × 6 viscous drag matrix (force and
-torque about the centre of mass against velocity and angular velocity), in WRENCH_UNIT."""
 
 
 @wp.func

@@ -788,7 +788,6 @@ class PBFSolver:
         # reactions summed in integer units of K.WRENCH_UNIT (order-independent sums)
         self.cols.force = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
         self.cols.torque = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
-        self.cols.drag = wp.zeros((nb, K.DRAG_ENTRIES), dtype=wp.int64, device=dev)
         # spatial hash: buckets = next power of two ≥ 2n; sort buffers need 2n entries
         buckets = 1 << max(10, math.ceil(math.log2(max(2 * n, 1))))
         self.bucket_mask = buckets - 1
@@ -1017,7 +1016,6 @@ class PBFSolver:
         )
         self.cols.force.zero_()
         self.cols.torque.zero_()
-        self.cols.drag.zero_()
         self.push.zero_()
         P = self.params
         self._launch(
@@ -1432,14 +1430,15 @@ class PBFSolver:
         last step's viscous wall reaction on each body slot (force, then torque about its CoM)
         falls as the body's velocity (linear, then angular) rises, with the liquid beside it
         answering as the solve lets one particle answer its wall and its neighbours held
-        (:func:`pourbench.fluids.viscosity.finish`). Zero without a viscous liquid.
+        (:func:`pourbench.fluids.viscosity.body_drag`, run by this call, not by the step).
+        Zero without a viscous liquid.
         :class:`~pourbench.fluids.coupling.MujocoCoupling` integrates that part of the drag
         implicitly."""
         n = self.num_body_slots
         out = np.zeros((n, 6, 6))
-        if self._dirty or n == 0:
+        if self._dirty or n == 0 or self.viscosity is None:
             return out
-        upper = self.cols.drag.numpy()[:n] * float(K.WRENCH_UNIT)
+        upper = self.viscosity.body_drag()
         rows, cols = np.triu_indices(6)
         out[:, rows, cols] = upper
         out[:, cols, rows] = upper

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.fluids.params import LiquidProfile
+from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.scenarios import GRAVITY, tilt_schedule, two_cup_scene
 from pourbench.fluids.solver import PBFSolver, SolverConfig
 from pourbench.geometry.shapes import BoxShell, cup
@@ -464,8 +464,6 @@ def newtonian(viscosity_pa_s: float, density: float = 1000.0) -> LiquidProfile:
     """A liquid whose only velocity filter is its physical viscosity (Pa·s) when run with
     ``SolverConfig(xsph_viscosity=0)``: water's other parameters, every FleX velocity term
     off."""
-    from pourbench.fluids.params import liquid_profile
-
     off = dict.fromkeys(FLEX_VELOCITY_TERMS, 0.0)
     return liquid_profile("water").replace(
         name=f"newtonian {viscosity_pa_s:g} Pa·s",

@@ -33,7 +33,8 @@ along and across a plane wall's normal (evaluated by Gauss–Legendre quadrature
 quarter spacing). The wall's velocity is the collider's at the particle over the step, and the
 wall term's momentum goes to the collider's body as its reaction, so a body moving through a
 viscous liquid feels its drag; the reaction's derivative in the body's velocity goes with it
-(``Colliders.drag``), for the coupling to integrate that drag implicitly.
+(:func:`body_drag`, run when the coupling asks), for the coupling to integrate that drag
+implicitly.
 
 No library solves this on Warp arrays with per-world isolation, so the kernels are written
 here. Each world's conjugate-gradient scalars are its own: its dot products are summed in
@@ -489,13 +490,48 @@ def skew(r: wp.vec3) -> wp.mat33:
     return wp.mat33(0.0, -r[2], r[1], r[2], 0.0, -r[0], -r[1], r[0], 0.0)
 
 
-@wp.func
-def add_drag(cols: K.Colliders, body: int, k: wp.mat33, r: wp.vec3):
-    """Add a wall point's drag k (N·s/m) at ``r`` from the body's CoM to the body's 6 × 6
-    drag matrix [[k, −k[r]×], [[r]×k, −[r]×k[r]×]] (upper triangle, K.DRAG_ENTRIES)."""
+DRAG_ENTRIES = 21
+"""Upper triangle, row by row, of a body's symmetric 6 × 6 viscous drag matrix (force and
+torque about the centre of mass against velocity and angular velocity)."""
+
+
+@wp.kernel
+def body_drag(
+    world: wp.array(dtype=wp.int32),
+    c_w: wp.array(dtype=float),
+    mass: wp.array(dtype=float),
+    dt: float,
+    x: wp.array(dtype=wp.vec3),
+    wall: wp.array(dtype=K.vec5),
+    wall_collider: wp.array(dtype=wp.int32),
+    wall_t: wp.array(dtype=wp.vec2),
+    inv_m: wp.array(dtype=wp.mat33),
+    cols: K.Colliders,
+    drag: wp.array2d(dtype=wp.int64),
+):
+    """Each body's drag matrix after a solve (``drag`` zero on entry, in K.WRENCH_UNIT):
+    the derivative of the wall's viscous reaction in the wall's velocity, each wall particle
+    answering through its preconditioner block M = (I + c(Σ u uᵀ + T))⁻¹ (its neighbours
+    held), is −(m/dt)(cT − cT M cT) = −k; at ``r`` from the body's CoM the body's wrench then
+    falls by [[k, −k[r]×], [[r]×k, −[r]×k[r]×]] times its velocity and angular velocity."""
+    i = wp.tid()
+    w = world[i]
+    c = c_w[w]
+    wc = wall_collider[i]
+    if c == 0.0 or wc < 0:
+        return
+    b = cols.body[wc]
+    if b < 0:
+        return
+    t = wall_t[i]
+    wl = wall[i]
+    n = wp.vec3(wl[0], wl[1], wl[2])
+    ct = (t[1] * wp.identity(n=3, dtype=float) + (t[0] - t[1]) * wp.outer(n, n)) * c
+    k = (ct - ct * inv_m[i] * ct) * (mass[w] / dt)
+    r = x[i] - cols.com[wc]
     s = skew(r)
-    b = -k * s
-    d = -(s * k * s)
+    off = -k * s
+    rot = -(s * k * s)
     e = int(0)
     for row in range(6):
         for col in range(row, 6):
@@ -503,10 +539,10 @@ def add_drag(cols: K.Colliders, body: int, k: wp.mat33, r: wp.vec3):
             if row < 3 and col < 3:
                 val = k[row, col]
             elif row < 3:
-                val = b[row, col - 3]
+                val = off[row, col - 3]
             else:
-                val = d[row - 3, col - 3]
-            wp.atomic_add(cols.drag, body, e, wp.int64(wp.round(val / K.WRENCH_UNIT)))
+                val = rot[row - 3, col - 3]
+            wp.atomic_add(drag, b, e, wp.int64(wp.round(val / K.WRENCH_UNIT)))
             e += 1
 
 
@@ -522,15 +558,11 @@ def finish(
     wall_t: wp.array(dtype=wp.vec2),
     v_wall: wp.array(dtype=wp.vec3),
     sol: wp.array(dtype=wp.vec3),
-    inv_m: wp.array(dtype=wp.mat33),
     cols: K.Colliders,
     v: wp.array(dtype=wp.vec3),
 ):
     """v = the solution; the wall's viscous force on the particle, m c T (v_wall − v) / dt,
-    goes to the collider's body as its reaction. Its derivative in the wall's velocity, with
-    the particle answering through its preconditioner block M = (I + c(Σ u uᵀ + T))⁻¹ (its
-    neighbours held), is −(m/dt)(cT − cT M cT): that goes to the body's drag matrix
-    (:meth:`pourbench.fluids.solver.PBFSolver.body_drag`)."""
+    goes to the collider's body as its reaction."""
     i = wp.tid()
     w = world[i]
     c = c_w[w]
@@ -541,15 +573,8 @@ def finish(
     wc = wall_collider[i]
     if wc >= 0:
         wl = wall[i]
-        n = wp.vec3(wl[0], wl[1], wl[2])
-        t = wall_t[i]
-        dv = apply_wall(t, n, v_wall[i] - vi) * c
+        dv = apply_wall(wall_t[i], wp.vec3(wl[0], wl[1], wl[2]), v_wall[i] - vi) * c
         K.add_reaction(cols, wc, dv * dt, x[i], mass[w], dt)
-        body = cols.body[wc]
-        if body >= 0:
-            ct = (t[1] * wp.identity(n=3, dtype=float) + (t[0] - t[1]) * wp.outer(n, n)) * c
-            k = (ct - ct * inv_m[i] * ct) * (mass[w] / dt)
-            add_drag(cols, body, k, x[i] - cols.com[wc])
 
 
 def chunks(world_sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -597,6 +622,7 @@ class ImplicitViscosity:
         self.diag = wp.zeros(n, dtype=wp.mat33, device=dev)
         self.inv_m = wp.zeros(n, dtype=wp.mat33, device=dev)
         self.wall_t = wp.zeros(n, dtype=wp.vec2, device=dev)
+        self.drag = wp.zeros((max(solver.num_body_slots, 1), DRAG_ENTRIES), wp.int64, device=dev)
         vec = ("v_wall", "rhs", "sol", "res", "z", "direction", "q", "lap")
         for name in vec:
             setattr(self, name, wp.zeros(n, dtype=wp.vec3, device=dev))
@@ -715,11 +741,26 @@ class ImplicitViscosity:
                 self.wall_t,
                 self.v_wall,
                 self.sol,
-                self.inv_m,
                 s.cols,
             ],
             [s.v],
         )
+
+    def body_drag(self) -> np.ndarray:
+        """(slots, DRAG_ENTRIES) of the last solve (:func:`body_drag`), N·s/m and kin: run on
+        demand, so a step whose caller never asks pays nothing for it."""
+        s, cfg = self.solver, self.solver.config
+        self.drag.zero_()
+        s._launch(
+            "visc_drag",
+            body_drag,
+            [
+                *(s.world, self.c_w, s.mass, cfg.dt, s.x, s.wall, s.wall_collider),
+                *(self.wall_t, self.inv_m, s.cols),
+            ],
+            [self.drag],
+        )
+        return self.drag.numpy()[: s.num_body_slots] * float(K.WRENCH_UNIT)
 
 
 @wp.kernel
