@@ -11,6 +11,7 @@ import pytest
 from pourbench.agents.train import main
 
 TINY = ["--budget-s", "2", "--num-envs", "1", "--n-steps", "16", "--eval-episodes", "1"]
+LSTM = ["--algorithm", "recurrent_ppo", "--policy", "lstm"]
 SMALL = ["--num-envs", "2", "--workers", "1", "--n-steps", "32", "--batch-size", "64"]
 
 
@@ -157,6 +158,12 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
         ({"out": ""}, "out must be a non-empty folder path"),
         ({"liquid": None}, "liquid must be a liquid name"),
         ({"n_steps": 1, "num_envs": 1}, r"n_steps \* num_envs .* must be >= 2"),
+        ({"warm_start_steps": -1}, "warm_start_steps must be >= 0, got -1"),
+        ({"clone_epochs": 0}, "clone_epochs must be >= 1, got 0"),
+        (
+            {"algorithm": "sac", "icm": False, "curriculum": False, "warm_start_steps": 64},
+            "warm_start_steps=64: the PD warm start clones into PPO or RecurrentPPO, not SAC",
+        ),
     ],
 )
 def test_bad_settings_are_refused_before_any_training(kw, words) -> None:
@@ -205,7 +212,7 @@ def _args(argv: list[str]) -> argparse.Namespace:
 @pytest.mark.parametrize(
     "flags, algorithm",
     [
-        (["--algorithm", "recurrent_ppo", "--policy", "lstm"], "recurrent_ppo"),
+        ([*LSTM, "--warm-start-steps", "64", "--clone-epochs", "2"], "recurrent_ppo"),
         (["--algorithm", "sac", "--no-icm", "--no-curriculum"], "sac"),
     ],
 )
@@ -219,6 +226,13 @@ def test_lstm_and_sac_runs_save_models_that_load_policy_reads(tmp_path, flags, a
     argv = [*SMALL, "--n-steps", "64", "--budget-steps", "128", "--eval-episodes", "1"]
     assert main([*argv, *flags, "--eval-every-steps", "0", "--out", str(out)]) == 0
     assert algorithm_of(out / "model.zip") == algorithm
+    state = json.loads((out / "state.json").read_text())
+    if "--warm-start-steps" in flags:  # 64 steps of 2 worlds' PD demonstrations, cloned
+        warm = state["warm_start"]
+        assert warm["steps"] == 64 and warm["seconds"] > 0 and np.isfinite(warm["nll"])
+        assert json.loads((out / "result.json").read_text())["warm_start"] == warm
+    else:
+        assert "warm_start" not in state
     assert (out / "training.png").exists()
     act = load_policy(out / "model.zip")
     obs = np.zeros(12, np.float32)

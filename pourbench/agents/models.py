@@ -12,13 +12,22 @@ part of a rollout, ``n_steps`` steps, cut at episode starts and at minibatch edg
 sequence is at most ``n_steps`` long; ``n_steps = seq_len = 64`` gives the thesis' 64. The
 training config refuses a recurrent run whose ``seq_len`` differs from ``n_steps``.
 
-Discount 0.995 (as before in this project; Algorithm 5's reward is sparse and an episode is
-up to 250 steps); the other hyper-parameters are SB3's defaults.
+Inputs: every network sees the observation divided by :data:`OBS_SCALE`
+(:class:`ScaledObservation`), a fixed scale per feature that brings grams, metres and FleX
+coefficients to order one, so that a 150 g target does not saturate the first tanh layer. It
+is part of the saved policy, so a loaded model needs no separate normaliser.
+
+Discount 0.995 (Algorithm 5's reward is sparse and an episode is up to 250 steps); the other
+hyper-parameters are SB3's defaults.
 """
 
 from __future__ import annotations
 
 from typing import Any
+
+import gymnasium as gym
+import torch
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
 from pourbench.errors import InvalidParameterError
 
@@ -27,6 +36,28 @@ HIDDEN = (256, 256, 256)
 LSTM_UNITS = 256
 """LSTM memory of the recurrent PourNet (thesis §6.5.8.1)."""
 GAMMA = 0.995
+
+OBS_SCALE = (1.0, 0.0025, 0.0075, 1.0, 0.1, 0.1, 0.1, 100.0, 100.0, 100.0, 100.0, 1.0)
+"""The unit each Pour-v0 observation feature is divided by before the networks: density g/ml,
+cohesion and surface tension at the curriculum's largest, log10 viscosity in mPa·s, adhesion
+at the curriculum's largest, the container's diameter and depth in 10 cm, the four weights in
+100 g, the tilt in rad."""
+
+
+class ScaledObservation(BaseFeaturesExtractor):
+    """The observation divided by :data:`OBS_SCALE`, feature by feature (no parameters)."""
+
+    def __init__(self, observation_space: gym.spaces.Box) -> None:
+        super().__init__(observation_space, features_dim=len(OBS_SCALE))
+        if observation_space.shape != (len(OBS_SCALE),):
+            raise InvalidParameterError(
+                f"ScaledObservation takes Pour-v0's {len(OBS_SCALE)} observations, got shape "
+                f"{observation_space.shape}"
+            )
+        self.register_buffer("inverse", 1.0 / torch.tensor(OBS_SCALE, dtype=torch.float32))
+
+    def forward(self, observations: torch.Tensor) -> torch.Tensor:
+        return observations * self.inverse
 
 
 def make_model(
@@ -70,7 +101,10 @@ def make_model(
             env,
             n_steps=n_steps,
             batch_size=min(batch_size, rollout),
-            policy_kwargs={"net_arch": {"pi": list(HIDDEN), "vf": list(HIDDEN)}},
+            policy_kwargs={
+                "net_arch": {"pi": list(HIDDEN), "vf": list(HIDDEN)},
+                "features_extractor_class": ScaledObservation,
+            },
             **common,
         )
     if algorithm == "recurrent_ppo":
@@ -85,6 +119,7 @@ def make_model(
                 "lstm_hidden_size": LSTM_UNITS,
                 "n_lstm_layers": 1,
                 "net_arch": {"pi": list(HIDDEN), "vf": list(HIDDEN)},
+                "features_extractor_class": ScaledObservation,
             },
             **common,
         )
@@ -94,7 +129,10 @@ def make_model(
             env,
             batch_size=batch_size,
             buffer_size=200_000,
-            policy_kwargs={"net_arch": list(HIDDEN)},
+            policy_kwargs={
+                "net_arch": list(HIDDEN),
+                "features_extractor_class": ScaledObservation,
+            },
             **common,
         )
     raise InvalidParameterError(

@@ -77,6 +77,11 @@ class TrainArgs:
         out: folder of the run (model, logs, plot, result).
         checkpoint_s: seconds between checkpoints.
         resume: continue the run in out from its latest checkpoint.
+        warm_start_steps: environment steps (over all worlds) of the PD baseline's
+            demonstrations that a new PPO or RecurrentPPO model is cloned from before it
+            trains (pourbench.agents.warmstart; 0: none, the thesis' start from scratch).
+            They and the cloning count in a time budget, not in the step budget.
+        clone_epochs: passes of the cloning over the demonstrations.
     """
 
     algorithm: str = "ppo"
@@ -100,6 +105,8 @@ class TrainArgs:
     out: str = "runs/pournet"
     checkpoint_s: float = 60.0
     resume: bool = False
+    warm_start_steps: int = 0
+    clone_epochs: int = 30
 
     def __post_init__(self) -> None:
         """Every setting checked at construction, before any training: a run that trains is
@@ -142,8 +149,14 @@ class TrainArgs:
             check_positive(name, getattr(self, name))
         for name in ("num_envs", "n_steps", "seq_len", "batch_size", "eval_episodes", "threads"):
             check_int(name, getattr(self, name), minimum=1)
-        for name in ("seed", "workers", "eval_every_steps"):
+        for name in ("seed", "workers", "eval_every_steps", "warm_start_steps"):
             check_int(name, getattr(self, name), minimum=0)
+        check_int("clone_epochs", self.clone_epochs, minimum=1)
+        if self.algorithm == "sac" and self.warm_start_steps:
+            raise InvalidParameterError(
+                f"warm_start_steps={self.warm_start_steps!r}: the PD warm start clones into "
+                "PPO or RecurrentPPO, not SAC"
+            )
         if self.workers > self.num_envs:
             raise InvalidParameterError(
                 f"workers={self.workers!r} is more than num_envs={self.num_envs!r}"
@@ -219,6 +232,35 @@ def _read_state(out: Path, args: TrainArgs) -> dict[str, Any]:
     return state
 
 
+def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, float]:
+    """Clone the PD baseline into ``model`` (:mod:`pourbench.agents.warmstart`) from
+    ``args.warm_start_steps`` environment steps of ``env``; what it measured (logged under
+    ``clone/`` and kept in ``state.json``)."""
+    from pourbench.agents.models import GAMMA
+    from pourbench.agents.warmstart import clone, demonstrate
+
+    t0 = time.perf_counter()
+    steps = -(-args.warm_start_steps // args.num_envs)
+    print(f"warm start: {steps * args.num_envs} steps of the PD baseline's demonstrations")
+    demos = demonstrate(env, steps, GAMMA, progress=True)
+    print(
+        f"warm start: the PD poured {len(demos.errors_g)} episodes, mean error "
+        f"{demos.mean_abs_error_g:.2f} g; cloning for {args.clone_epochs} epochs"
+    )
+    stats = clone(model, demos, args.clone_epochs, seed=args.seed, progress=True)
+    out = {
+        "steps": steps * args.num_envs,
+        "episodes": len(demos.errors_g),
+        "pd_mean_abs_error_g": demos.mean_abs_error_g,
+        **stats,
+        "seconds": time.perf_counter() - t0,
+    }
+    for key, value in out.items():
+        model.logger.record(f"clone/{key}", value)
+    model.logger.dump(0)
+    return out
+
+
 def train(args: TrainArgs, command: str | None = None) -> dict:
     """Train until the budget is spent, write the plot, evaluate against a random policy;
     the result (also written to ``<out>/result.json``). ``command`` is recorded as the
@@ -291,6 +333,10 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()
+        if args.warm_start_steps and not args.resume:
+            state["warm_start"] = _warm_start(model, base, args)
+            if left_s is not None:
+                left_s -= time.perf_counter() - t_start
 
         def spent_s() -> float:
             return state["train_s"] + time.perf_counter() - t_start
@@ -309,6 +355,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
                 "train_s": total_s,
                 "sessions": state["sessions"] + 1,
                 "history": [*state.get("history", []), session],
+                **({"warm_start": state["warm_start"]} if "warm_start" in state else {}),
             }
             write_text_atomic(out / "state.json", json.dumps(now, indent=2) + "\n")
 
@@ -356,6 +403,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         "policy": final.summary(),
         "random": rnd.summary(),
         "plot": str(plot),
+        "warm_start": state.get("warm_start"),
         "provenance": stamp,
     }
     write_text_atomic(out / "result.json", json.dumps(result, indent=2) + "\n")

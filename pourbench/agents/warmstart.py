@@ -1,0 +1,161 @@
+"""Warm start from the PD baseline: behaviour cloning before reinforcement learning.
+
+The thesis trains PourNet from scratch on Algorithm 5's sparse reward, which a CPU budget of a
+few hours may not reach. ``pourbench train --warm-start-steps N`` first rolls the PD baseline
+(:mod:`pourbench.agents.pd`) in the training's own vector env for ``N`` environment steps
+(:func:`demonstrate`), then fits the new model to them (:func:`clone`): its policy to the PD's
+actions by maximum likelihood (the Gaussian's mean and its state-independent log standard
+deviation, so the exploration PPO starts from is the spread the fit leaves), and its value
+network to the demonstrations' discounted returns, so that PPO's first advantages are not
+those of an untrained critic. Training then goes on as without it.
+
+Written by hand: the ``imitation`` library's behaviour cloning covers SB3's feed-forward
+policies but not sb3-contrib's recurrent ones. Here both go through the policy's own
+``evaluate_actions``; the LSTM runs over each world's whole demonstration from a zero state,
+reset at its episode starts, as it does when it acts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pourbench.errors import check_int
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """The PD baseline's rollout in a vector env of ``n`` worlds over ``T`` steps."""
+
+    obs: np.ndarray  # (T, n, 12) float32, what the PD saw
+    actions: np.ndarray  # (T, n, 2) float32, what it did
+    starts: np.ndarray  # (T, n) bool, obs[t, k] is its episode's first
+    returns: np.ndarray  # (T, n) discounted reward from step t to its episode's end
+    complete: np.ndarray  # (T, n) bool, step t's episode ended within the rollout
+    errors_g: np.ndarray  # pouring error of each episode that ended normally, g
+
+    @property
+    def mean_abs_error_g(self) -> float:
+        """The PD's mean pouring error over its finished episodes, g (NaN if none)."""
+        return float(np.mean(self.errors_g)) if len(self.errors_g) else float("nan")
+
+
+def demonstrate(env: Any, steps: int, gamma: float, progress: bool = False) -> Demonstrations:
+    """Reset the SB3 VecEnv ``env`` (a :class:`~pourbench.agents.sb3.SB3PourVecEnv`) and act
+    in it with the PD baseline for ``steps`` vector steps; ``gamma`` discounts the returns;
+    ``progress`` shows a progress bar."""
+    from tqdm import tqdm
+
+    from pourbench.agents.pd import PDPourer
+
+    steps = check_int("steps", steps, minimum=1)
+    n = env.num_envs
+    pd = PDPourer(n)
+    obs_all = np.zeros((steps, n, 12), np.float32)
+    act_all = np.zeros((steps, n, 2), np.float32)
+    rew = np.zeros((steps, n))
+    done = np.zeros((steps, n), bool)
+    starts = np.zeros((steps, n), bool)
+    errors: list[float] = []
+    obs = env.reset()
+    starts[0] = True
+    for t in tqdm(range(steps), desc="PD demonstrations", unit="step", disable=not progress):
+        a = pd.act(obs)
+        obs_all[t], act_all[t] = obs, a
+        obs, rew[t], done[t], infos = env.step(a)
+        for k in np.flatnonzero(done[t]):
+            if not infos[k].get("TimeLimit.truncated", False) and not infos[k]["collided"]:
+                errors.append(float(infos[k]["error_g"]))
+        pd.reset(done[t])
+        if t + 1 < steps:
+            starts[t + 1] = done[t]
+    returns = np.zeros((steps, n))
+    complete = np.zeros((steps, n), bool)
+    after, ended = np.zeros(n), np.zeros(n, bool)
+    for t in range(steps - 1, -1, -1):
+        after = rew[t] + gamma * np.where(done[t], 0.0, after)
+        ended = done[t] | ended
+        returns[t], complete[t] = after, ended
+    return Demonstrations(obs_all, act_all, starts, returns, complete, np.array(errors))
+
+
+def clone(
+    model: Any,
+    demos: Demonstrations,
+    epochs: int,
+    lr: float = 1e-3,
+    seed: int = 0,
+    progress: bool = False,
+) -> dict[str, float]:
+    """Fit ``model``'s policy (PPO or RecurrentPPO) to ``demos`` for ``epochs`` passes: the
+    actions' negative log-likelihood plus half the value network's squared error on the
+    returns of the episodes that ended. Returns the last epoch's mean action error (the
+    deterministic action's squared distance to the PD's), its negative log-likelihood and
+    its value error. ``progress`` shows a progress bar over the epochs."""
+    import torch
+    from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
+    from sb3_contrib.common.recurrent.type_aliases import RNNStates
+    from tqdm import tqdm
+
+    epochs = check_int("epochs", epochs, minimum=1)
+    policy = model.policy
+    policy.set_training_mode(True)
+    optimiser = torch.optim.Adam(policy.parameters(), lr=lr)
+    rng = np.random.default_rng(seed)
+    recurrent = isinstance(policy, RecurrentActorCriticPolicy)
+    T, n = demos.starts.shape
+
+    def as_tensor(a: np.ndarray, worlds: np.ndarray | None = None) -> torch.Tensor:
+        # recurrent: the chosen worlds' sequences one after another (sb3-contrib's layout)
+        if worlds is not None:
+            a = np.swapaxes(a, 0, 1)[worlds]
+        return torch.as_tensor(a.reshape(-1, *a.shape[2:]), dtype=torch.float32)
+
+    if recurrent:
+        per = min(n, 8)
+        batches = [np.sort(b) for b in np.array_split(np.arange(n), max(1, n // per))]
+    else:
+        samples = T * n
+        size = min(256, samples)
+    stats: dict[str, float] = {}
+    bar = tqdm(range(epochs), desc="cloning the PD", unit="epoch", disable=not progress)
+    for _ in bar:
+        if recurrent:
+            order = [batches[i] for i in rng.permutation(len(batches))]
+        else:
+            perm = rng.permutation(samples)
+            order = [perm[i : i + size] for i in range(0, samples, size)]
+        sums = np.zeros(3)
+        for idx in order:
+            if recurrent:
+                obs, act = as_tensor(demos.obs, idx), as_tensor(demos.actions, idx)
+                ret, mask = as_tensor(demos.returns, idx), as_tensor(demos.complete, idx)
+                start = as_tensor(demos.starts, idx)
+                shape = (policy.lstm_actor.num_layers, len(idx), policy.lstm_actor.hidden_size)
+                zero = (torch.zeros(shape), torch.zeros(shape))
+                values, logp, _ = policy.evaluate_actions(obs, act, RNNStates(zero, zero), start)
+                with torch.no_grad():
+                    mean = policy.get_distribution(obs, zero, start)[0].distribution.mean
+            else:
+                flat = [a.reshape(-1, *a.shape[2:])[idx] for a in (demos.obs, demos.actions)]
+                obs, act = (torch.as_tensor(a, dtype=torch.float32) for a in flat)
+                ret = torch.as_tensor(demos.returns.reshape(-1)[idx], dtype=torch.float32)
+                mask = torch.as_tensor(demos.complete.reshape(-1)[idx], dtype=torch.float32)
+                values, logp, _ = policy.evaluate_actions(obs, act)
+                with torch.no_grad():
+                    mean = policy.get_distribution(obs).distribution.mean
+            err = ((values.flatten() - ret) ** 2 * mask).sum() / mask.sum().clamp(min=1.0)
+            nll = -logp.mean()
+            loss = nll + 0.5 * err
+            optimiser.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(policy.parameters(), 0.5)
+            optimiser.step()
+            mse = float(((mean.clamp(-1.0, 1.0) - act) ** 2).sum(1).mean())
+            sums += (mse, float(nll.detach()), float(err.detach()))
+        stats = dict(zip(("action_mse", "nll", "value_mse"), sums / len(order), strict=True))
+        bar.set_postfix(stats)
+    policy.set_training_mode(False)
+    return stats
