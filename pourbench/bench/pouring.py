@@ -1,0 +1,298 @@
+"""``pourbench bench pouring``: thesis Table 6.3 on this project's liquids, and the novel
+containers of Figure 6.13 / Table 6.1.
+
+**Table 6.3's protocol.** Table 6.2's six liquids × 50 / 100 / 150 / 200 g × 10 pours (seeds
+0…9) on ``pourbench/Pour-v0``, the pouring container drawn by the env from its training set,
+by every policy: the shipped PourNet policies (``pournet-lstm``, ``pournet-mlp``) where they
+exist, the PD baseline and a uniform random policy; the thesis' LSTM and FNN numbers beside.
+
+**Novel containers.** Every container of the ``novel`` set × water 50 g × 3 pours, by the
+same policies, in grams and millilitres, beside the thesis' PourNet range for water (Table
+6.1, 3.8–8.66 ml).
+
+Each episode is one job: a fresh single env reset with its seed, so its result depends only
+on (policy, liquid, container, target, seed), not on the order or the process it runs in.
+Jobs are spread over one process per core; each result is appended as it finishes to
+``runs/pouring/episodes.jsonl``, keyed by the git SHA at the start, so a run that stops
+resumes where it was.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from pourbench.argtypes import shipped_policies
+from pourbench.bench._report import git_sha, markdown_table, write_report
+
+LIQUIDS = ("water", "ink", "oil", "glycerine", "honey", "ketchup")
+"""Table 6.2's liquids, in Table 6.3's column order."""
+
+TARGETS_G = (50.0, 100.0, 150.0, 200.0)
+POURS = 10
+NOVEL_TARGET_G = 50.0
+NOVEL_POURS = 3
+
+THESIS_TABLE_6_3 = {
+    "lstm": {
+        "water": (7.72, 2.3, 4.96, 4.76),
+        "ink": (4.44, 6.34, 8.38, 5.9),
+        "oil": (4.66, 8.64, 6.44, 7.38),
+        "glycerine": (4.4, 7.66, 8.8, 6.9),
+        "honey": (9.1, 5.26, 12.0, 10.54),
+        "ketchup": (11.66, 20.36, None, None),
+    },
+    "fnn": {
+        "water": (8.49, 5.13, 7.65, 5.65),
+        "ink": (7.65, 7.94, 8.32, 6.17),
+        "oil": (5.35, 8.91, 8.3, 8.25),
+        "glycerine": (8.3, 8.52, 8.6, 7.5),
+        "honey": (9.4, 8.26, 10.2, 10.79),
+        "ketchup": (15.42, 19.40, None, None),
+    },
+}
+"""Thesis Table 6.3: mean absolute deviation (g) of the LSTM and FNN PourNet in FleX, per
+liquid at 50 / 100 / 150 / 200 g (None: ketchup's large targets were never reached)."""
+
+THESIS_WATER_ML = (3.8, 8.66)
+"""Thesis Table 6.1: PourNet's mean deviation range for water over its pouring containers, ml."""
+
+SHIPPED = ("pournet-lstm", "pournet-mlp")
+BASELINES = ("pd", "random")
+LOG = Path("runs") / "pouring" / "episodes.jsonl"
+
+Job = tuple[str, str, str | None, float, int]  # policy, liquid, container, target, seed
+
+
+def policies() -> tuple[str, ...]:
+    """The shipped PourNet policies that exist, then the baselines."""
+    return (*(p for p in SHIPPED if p in shipped_policies()), *BASELINES)
+
+
+def episode(policy: str, liquid: str, container: str | None, target_g: float, seed: int) -> dict:
+    """One pour of ``target_g`` of ``liquid`` by ``policy`` on Pour-v0: from the ``novel``
+    set's ``container``, or (None) from the training set as the env draws it."""
+    from pourbench.agents.loading import load_policy
+    from pourbench.envs.pour import PourEnv
+
+    env = PourEnv(liquid=liquid, container_set="training" if container is None else "novel")
+    act = load_policy(policy, seed)
+    start = time.perf_counter()
+    options: dict[str, Any] = {"target_g": target_g}
+    if container is not None:
+        options["container"] = container
+    obs, info = env.reset(seed=seed, options=options)
+    density = float(obs[0])  # the observation's first feature: the liquid's density, g/ml
+    new, done, steps = True, False, 0
+    while not done:
+        obs, _, term, trunc, info = env.step(act(obs, new))
+        new, done, steps = False, term or trunc, steps + 1
+    env.close()
+    return {
+        "error_g": float(info["error_g"]),
+        "error_ml": float(info["error_g"] / density),
+        "spilled_g": float(info["spilled_g"]),
+        "success": bool(info["is_success"]),
+        "collided": bool(info["collided"]),
+        "sim_diverged": bool(info["sim_diverged"]),
+        "container": str(info["container"]),
+        "steps": steps,
+        "wall_s": time.perf_counter() - start,
+    }
+
+
+def _run(job: Job) -> tuple[Job, dict]:
+    return job, episode(*job)
+
+
+def _key(sha: str, job: Job) -> str:
+    return json.dumps([sha, *job])
+
+
+def run_episodes(jobs: list[Job], log: Path, sha: str, workers: int) -> dict[Job, dict]:
+    """Every job's result: from ``log`` where the code at git SHA ``sha`` ran it already,
+    otherwise run over ``workers`` processes (with a progress bar) and appended to it."""
+    done: dict[str, dict] = {}
+    if log.is_file():
+        for line in log.read_text().splitlines():
+            if line.strip():
+                entry = json.loads(line)
+                done[entry["key"]] = entry["result"]
+    results = {j: done[_key(sha, j)] for j in jobs if _key(sha, j) in done}
+    todo = [j for j in jobs if j not in results]
+    if results:
+        print(f"pouring: {len(results)} episodes from {log}", file=sys.stderr)
+    log.parent.mkdir(parents=True, exist_ok=True)
+    bar = tqdm(total=len(todo), desc="pouring episodes", file=sys.stderr)
+    with log.open("a") as f:
+
+        def keep(job: Job, result: dict) -> None:
+            results[job] = result
+            f.write(json.dumps({"key": _key(sha, job), "result": result}) + "\n")
+            f.flush()
+            bar.update()
+
+        if workers <= 1 or len(todo) <= 1:
+            for job in todo:
+                keep(*_run(job))
+        else:
+            context = get_context("spawn")  # fresh interpreters: no forked Warp or torch state
+            with ProcessPoolExecutor(min(workers, len(todo)), mp_context=context) as pool:
+                for future in as_completed([pool.submit(_run, j) for j in todo]):
+                    keep(*future.result())
+    bar.close()
+    return results
+
+
+def _mean(results: dict[Job, dict], jobs: list[Job], key: str = "error_g") -> float:
+    return float(np.mean([results[j][key] for j in jobs]))
+
+
+def _flags(eps: list[dict]) -> str:
+    """The episodes that ended on a flag, by flag ("" when none did)."""
+    counts = {k: sum(e[k] for e in eps) for k in ("collided", "sim_diverged")}
+    return ", ".join(f"{k} {v}" for k, v in counts.items() if v)
+
+
+def liquid_table(
+    results: dict[Job, dict],
+    names: tuple[str, ...],
+    liquids: tuple[str, ...],
+    targets: tuple[float, ...],
+    pours: int,
+) -> list[dict[str, Any]]:
+    """One row per liquid and target: each policy's mean absolute error (g) and success rate
+    over the pours, beside the thesis' LSTM and FNN."""
+    rows = []
+    for liquid in liquids:
+        for target in targets:
+            row: dict[str, Any] = {"liquid": liquid, "target_g": target}
+            i = TARGETS_G.index(target)
+            row["thesis_lstm_g"] = THESIS_TABLE_6_3["lstm"][liquid][i]
+            row["thesis_fnn_g"] = THESIS_TABLE_6_3["fnn"][liquid][i]
+            flags = []
+            for p in names:
+                jobs = [(p, liquid, None, target, s) for s in range(pours)]
+                row[f"{p}_g"] = _mean(results, jobs)
+                row[f"{p}_success"] = _mean(results, jobs, "success")
+                if f := _flags([results[j] for j in jobs]):
+                    flags.append(f"{p}: {f}")
+            row["flags"] = "; ".join(flags)
+            rows.append(row)
+    return rows
+
+
+def container_table(
+    results: dict[Job, dict], names: tuple[str, ...], containers: tuple[str, ...], pours: int
+) -> list[dict[str, Any]]:
+    """One row per novel container: each policy's mean absolute error over the pours of
+    50 g of water, g and ml."""
+    rows = []
+    for c in containers:
+        row: dict[str, Any] = {"container": c}
+        for p in names:
+            jobs = [(p, "water", c, NOVEL_TARGET_G, s) for s in range(pours)]
+            row[f"{p}_g"] = _mean(results, jobs)
+            row[f"{p}_ml"] = _mean(results, jobs, "error_ml")
+        rows.append(row)
+    return rows
+
+
+def _averages(rows: list[dict[str, Any]], columns: list[str]) -> str:
+    parts = []
+    for c in columns:
+        values = [r[c] for r in rows if r[c] is not None]
+        parts.append(f"{c} {np.mean(values):.2f}")
+    return ", ".join(parts)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pourbench.containers import container_names
+
+    quick = args.quick
+    liquids = ("water",) if quick else LIQUIDS
+    targets = (100.0,) if quick else TARGETS_G
+    pours = 2 if quick else POURS
+    novel = container_names("novel")[:2] if quick else container_names("novel")
+    novel_pours = 1 if quick else NOVEL_POURS
+    names = policies()
+    sha = git_sha()
+    jobs: list[Job] = [
+        (p, liquid, None, target, s)
+        for p in names
+        for liquid in liquids
+        for target in targets
+        for s in range(pours)
+    ]
+    jobs += [
+        (p, "water", c, NOVEL_TARGET_G, s) for p in names for c in novel for s in range(novel_pours)
+    ]
+    log = LOG.with_name("episodes-quick.jsonl") if quick else LOG
+    results = run_episodes(jobs, log, sha, os.cpu_count() or 1)
+    rows = liquid_table(results, names, liquids, targets, pours)
+    crows = container_table(results, names, novel, novel_pours)
+    columns = ["liquid", "target_g", "thesis_lstm_g", "thesis_fnn_g"]
+    columns += [f"{p}_{k}" for p in names for k in ("g", "success")] + ["flags"]
+    ccolumns = ["container"] + [f"{p}_{k}" for p in names for k in ("g", "ml")]
+    pending = [p for p in SHIPPED if p not in names]
+    body = "\n".join(
+        [
+            "Policies: " + ", ".join(f"`{p}`" for p in names) + "."
+            + (
+                f" Not shipped yet: {', '.join(f'`{p}`' for p in pending)}; their rows appear "
+                "when they are."
+                if pending
+                else ""
+            ),
+            "",
+            "## Table 6.3's protocol",
+            "",
+            f"Table 6.2's liquids × {', '.join(f'{t:g}' for t in targets)} g × {pours} pours "
+            "(seeds 0…) on `pourbench/Pour-v0` with its defaults (the training set's pouring "
+            "container, 8 mm particles). Columns: `<policy>_g`, the mean absolute error over "
+            "the pours, g; `<policy>_success`, the share that ended with an error of at most "
+            "10 g; `thesis_*_g`, Table 6.3's PourNet in FleX (– where ketchup's large targets "
+            "were never reached); `flags`, episodes ended by a collision or a diverged liquid.",
+            "",
+            markdown_table(rows, columns),
+            "",
+            "Mean over the table: "
+            + _averages(rows, ["thesis_lstm_g", "thesis_fnn_g", *(f"{p}_g" for p in names)])
+            + " g.",
+            "",
+            "## Novel containers (Figure 6.13 / Table 6.1)",
+            "",
+            f"Each container of the `novel` set × water {NOVEL_TARGET_G:g} g × {novel_pours} "
+            "pour(s) (seeds 0…). Mean absolute error, g and ml; the thesis' PourNet ranged over "
+            f"{THESIS_WATER_ML[0]}–{THESIS_WATER_ML[1]} ml on its real containers (Table 6.1), "
+            "with the two bottles as outliers.",
+            "",
+            markdown_table(crows, ccolumns),
+        ]
+    )  # fmt: skip
+    if not args.no_write:
+        write_report(
+            "pouring",
+            rows,
+            out=args.out,
+            title="Table 6.3: pouring Table 6.2's liquids, and the novel containers",
+            body_md=body,
+            extra={"policies": list(names), "pours": pours, "novel_containers": crows},
+            git_sha_at_start=sha,
+        )
+    if args.json:
+        print(json.dumps({"suite": "pouring", "rows": rows, "novel_containers": crows}))
+    else:
+        print(markdown_table(rows, columns))
+        print(markdown_table(crows, ccolumns))
+    return 0

@@ -1,0 +1,100 @@
+"""``pourbench bench pouring``: Table 6.3's protocol and the novel containers, resumable, and
+the same numbers however its episodes are spread over processes."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import pytest
+
+from pourbench.bench import pouring
+
+
+def _result(error_g: float, success: bool = True, density: float = 1.0) -> dict:
+    return {
+        "error_g": error_g,
+        "error_ml": error_g / density,
+        "success": success,
+        "collided": False,
+        "sim_diverged": False,
+    }
+
+
+def test_the_tables_set_each_policy_beside_the_thesis() -> None:
+    results = {
+        ("pd", "ketchup", None, 150.0, 0): _result(4.0),
+        ("pd", "ketchup", None, 150.0, 1): _result(12.0, success=False),
+        ("random", "ketchup", None, 150.0, 0): _result(150.0, success=False),
+        ("random", "ketchup", None, 150.0, 1): {**_result(150.0, False), "collided": True},
+        ("pd", "water", None, 100.0, 0): _result(2.0),
+        ("pd", "water", None, 100.0, 1): _result(3.0),
+        ("random", "water", None, 100.0, 0): _result(100.0, False),
+        ("random", "water", None, 100.0, 1): _result(100.0, False),
+    }
+    names = ("pd", "random")
+    (ketchup,) = pouring.liquid_table(results, names, ("ketchup",), (150.0,), 2)
+    (water,) = pouring.liquid_table(results, names, ("water",), (100.0,), 2)
+    assert ketchup["thesis_lstm_g"] is None and ketchup["thesis_fnn_g"] is None  # never reached
+    assert (ketchup["pd_g"], ketchup["pd_success"], ketchup["random_g"]) == (8.0, 0.5, 150.0)
+    assert ketchup["flags"] == "random: collided 1"
+    assert (water["thesis_lstm_g"], water["thesis_fnn_g"]) == (2.3, 5.13)  # Table 6.3, 100 g
+    assert (water["pd_g"], water["pd_success"], water["flags"]) == (2.5, 1.0, "")
+
+    novel = {("pd", "water", "mug", 50.0, s): _result(e, density=1.25) for s, e in ((0, 1), (1, 4))}
+    (row,) = pouring.container_table(novel, ("pd",), ("mug",), 2)
+    assert (row["pd_g"], row["pd_ml"]) == (2.5, 2.0)
+
+
+def test_a_stopped_run_resumes_from_its_log(tmp_path, monkeypatch) -> None:
+    """Jobs logged under this SHA come from the log; only the rest run, each appended as it
+    finishes; another commit runs them all again."""
+    log = tmp_path / "episodes.jsonl"
+    sha = pouring.git_sha()
+    jobs = [("pd", "water", None, 50.0, s) for s in range(3)]
+    log.write_text(json.dumps({"key": pouring._key(sha, jobs[0]), "result": _result(1.5)}) + "\n")
+    ran = []
+
+    def fake_episode(*job):
+        ran.append(job)
+        return _result(2.0)
+
+    monkeypatch.setattr(pouring, "episode", fake_episode)
+    results = pouring.run_episodes(jobs, log, sha, workers=1)
+    assert ran == jobs[1:]
+    assert results[jobs[0]]["error_g"] == 1.5 and results[jobs[2]]["error_g"] == 2.0
+    assert len(log.read_text().splitlines()) == 3
+    ran.clear()
+    pouring.run_episodes(jobs, log, sha, workers=1)
+    assert ran == []
+    pouring.run_episodes(jobs, log, "another commit", workers=1)
+    assert ran == jobs
+
+
+@pytest.mark.slow
+def test_episodes_give_the_same_numbers_in_one_process_or_two(tmp_path) -> None:
+    """Each episode is a fresh env reset with its seed: spread over two processes, the PD's
+    and the random policy's episodes give what they give in this one."""
+    jobs = [("pd", "water", None, 50.0, 0), ("random", "water", None, 50.0, 1),
+            ("pd", "honey", "mug", 50.0, 2)]  # fmt: skip
+    here = pouring.run_episodes(jobs, tmp_path / "one.jsonl", "sha", workers=1)
+    spread = pouring.run_episodes(jobs, tmp_path / "two.jsonl", "sha", workers=2)
+    for job in jobs:
+        a, b = dict(here[job]), dict(spread[job])
+        a.pop("wall_s"), b.pop("wall_s")
+        assert a == b, job
+    assert here[jobs[0]]["error_g"] <= 10.0 and here[jobs[1]]["error_g"] == 50.0
+
+
+@pytest.mark.slow
+def test_quick_pouring_table_is_written(tmp_path, monkeypatch) -> None:
+    """The quick variant: water at 100 g and two novel containers at 50 g, by the PD baseline
+    (within 10 g) and the random policy (which never pours in the thesis' action mode)."""
+    monkeypatch.chdir(tmp_path)
+    args = argparse.Namespace(quick=True, no_write=False, out=str(tmp_path), json=False)
+    assert pouring.run(args) == 0
+    data = json.loads((tmp_path / "pouring.json").read_text())
+    (row,) = data["rows"]
+    assert row["thesis_lstm_g"] == 2.3 and row["pd_g"] <= 10.0 and row["random_g"] == 100.0
+    assert len(data["novel_containers"]) == 2
+    assert "## Novel containers" in (tmp_path / "pouring.md").read_text()
