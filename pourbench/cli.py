@@ -18,7 +18,15 @@ from collections.abc import Sequence
 
 from pourbench.argtypes import nonnegative_int, policy_name, positive_float, positive_int
 
-BENCH_SUITES: tuple[str, ...] = ("fluids", "teleop", "planning", "env", "transfer", "pouring")
+BENCH_SUITES: tuple[str, ...] = (
+    "fluids",
+    "teleop",
+    "planning",
+    "env",
+    "transfer",
+    "pouring",
+    "ablation",
+)
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:

@@ -1,0 +1,175 @@
+"""``pourbench bench ablation``: thesis Figures 6.7 and 6.8, what curiosity and the
+curriculum add to PPO.
+
+Three runs of ``pourbench train`` with the same algorithm, budget, seed and evaluations:
+
+* ``ppo``: Algorithm 5's reward alone, water in every episode (``--no-icm --no-curriculum``);
+* ``ppo_icm``: with the curiosity module's intrinsic reward (``--no-curriculum``);
+* ``ppo_icm_curriculum``: with both (the thesis' PourNet).
+
+Each is evaluated every tenth of its budget on the same water episodes (10 pours, seeds
+1000…, targets drawn by the env), and the figure plots that evaluation's mean absolute
+pouring error, and the training episodes' running average error (thesis §6.5.1), against
+environment steps. The runs live in ``runs/ablation/<variant>/``; a stopped ablation resumes
+each run from its last checkpoint, and a finished run is read back, not trained again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from pourbench.bench._report import git_sha, markdown_table, write_report
+
+VARIANTS: dict[str, dict[str, bool]] = {
+    "ppo": {"icm": False, "curriculum": False},
+    "ppo_icm": {"icm": True, "curriculum": False},
+    "ppo_icm_curriculum": {"icm": True, "curriculum": True},
+}
+ALGORITHM, POLICY = "recurrent_ppo", "lstm"
+BUDGET_STEPS = 200_000
+QUICK = {"budget_steps": 256, "num_envs": 2, "n_steps": 32, "batch_size": 64}
+RUNS = Path("runs") / "ablation"
+COLUMNS = [
+    "variant",
+    "steps",
+    "train_h",
+    "final_eval_error_g",
+    "best_eval_error_g",
+    "final_average_error_g",
+    "random_eval_error_g",
+]
+
+
+def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
+    """Train (or resume, or read back) one variant; its ``result.json``."""
+    from pourbench.agents.train import TrainArgs, train
+
+    out = runs / ("quick" if quick else "full") / name
+    size = QUICK if quick else {"budget_steps": BUDGET_STEPS}
+    steps = size["budget_steps"]
+    result = out / "result.json"
+    if result.is_file():
+        done = json.loads(result.read_text())
+        if done["timesteps"] >= steps:
+            print(f"ablation: {name} read back from {result}", file=sys.stderr)
+            return done
+    n_steps = size.get("n_steps", 64)
+    args = TrainArgs(
+        algorithm=ALGORITHM,
+        policy=POLICY,
+        **VARIANTS[name],
+        **size,
+        seq_len=n_steps,
+        eval_every_steps=max(1, steps // 10),
+        eval_episodes=1 if quick else 10,
+        workers=1 if quick else 0,
+        out=str(out),
+        resume=(out / "model.zip").is_file(),
+    )
+    print(f"ablation: training {name} for {steps} steps into {out}", file=sys.stderr)
+    return train(args, command=f"pourbench bench ablation ({name})")
+
+
+def curves(out: Path) -> dict[str, list[tuple[float, float]]]:
+    """A run's evaluation error and running average error against steps."""
+    from pourbench.agents.plots import read_progress
+
+    series = read_progress(sorted(out.glob("logs/*/progress.csv")))
+    return {k: series.get(k, []) for k in ("eval/mean_abs_error_g", "pour/average_error_g")}
+
+
+def plot(runs: dict[str, dict[str, list[tuple[float, float]]]], png: Path) -> Path:
+    """The variants' two curves side by side (matplotlib, no display needed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
+    titles = {
+        "eval/mean_abs_error_g": "evaluation: mean absolute error on water, g",
+        "pour/average_error_g": "training: running average pouring error, g",
+    }
+    for ax, (key, title) in zip(axes, titles.items(), strict=True):
+        for name, series in runs.items():
+            if series[key]:
+                xs, ys = zip(*series[key], strict=True)
+                ax.plot(xs, ys, marker=".", label=name)
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("environment steps", fontsize=8)
+        ax.grid(alpha=0.3)
+        if ax.lines:
+            ax.legend(fontsize=8)
+    fig.suptitle("PPO, + curiosity, + curriculum (thesis Figures 6.7 and 6.8)", fontsize=10)
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    partial = png.with_name(png.stem + ".partial.png")
+    fig.savefig(partial, dpi=100)
+    plt.close(fig)
+    partial.replace(png)
+    return png
+
+
+def rows_of(results: dict[str, dict], runs: dict[str, dict]) -> list[dict[str, Any]]:
+    """One row per variant: steps, wall time, final and best evaluation error, the last
+    running average error, and a random policy's error on the same episodes."""
+    rows = []
+    for name, r in results.items():
+        evals = [e for _, e in runs[name]["eval/mean_abs_error_g"]]
+        averages = [a for _, a in runs[name]["pour/average_error_g"]]
+        rows.append(
+            {
+                "variant": name,
+                "steps": r["timesteps"],
+                "train_h": r["total_train_s"] / 3600.0,
+                "final_eval_error_g": r["mean_abs_error_g"],
+                "best_eval_error_g": min([*evals, r["mean_abs_error_g"]]),
+                "final_average_error_g": averages[-1] if averages else None,
+                "random_eval_error_g": r["random_mean_abs_error_g"],
+            }
+        )
+    return rows
+
+
+def run(args: argparse.Namespace) -> int:
+    sha = git_sha()
+    results = {name: train_variant(name, args.quick) for name in VARIANTS}
+    runs = {name: curves(Path(r["args"]["out"])) for name, r in results.items()}
+    rows = rows_of(results, runs)
+    out = Path(args.out)
+    body = "\n".join(
+        [
+            f"Three `pourbench train` runs of {ALGORITHM} ({POLICY}), seed 0, the same budget "
+            "and evaluations: `ppo` (Algorithm 5's reward alone, water in every episode), "
+            "`ppo_icm` (with the curiosity module), `ppo_icm_curriculum` (with the liquid "
+            "curriculum too: the thesis' PourNet). `final_eval_error_g` / `best_eval_error_g`: "
+            "the evaluation on water (10 pours, seeds 1000…) at the end and at its best; "
+            "`final_average_error_g`: the training episodes' running average error (thesis "
+            "§6.5.1) at the end; `random_eval_error_g`: a random policy on the same episodes. "
+            "Each run's sessions (command, git SHA, machine) are in its `state.json`.",
+            "",
+            markdown_table(rows, COLUMNS),
+            "",
+            "![ablation](ablation.png)" if not args.no_write else "",
+        ]
+    )
+    if not args.no_write:
+        plot(runs, out / "ablation.png")
+        write_report(
+            "ablation",
+            rows,
+            out=str(out),
+            title="Curiosity and curriculum: thesis Figures 6.7 and 6.8",
+            body_md=body,
+            extra={"curves": {n: {k: list(v) for k, v in c.items()} for n, c in runs.items()}},
+            git_sha_at_start=sha,
+        )
+    if args.json:
+        print(json.dumps({"suite": "ablation", "rows": rows}))
+    else:
+        print(markdown_table(rows, COLUMNS))
+    return 0
