@@ -229,7 +229,7 @@ def test_lstm_and_sac_runs_save_models_that_load_policy_reads(tmp_path, flags, a
     state = json.loads((out / "state.json").read_text())
     if "--warm-start-steps" in flags:  # 64 steps of 2 worlds' PD demonstrations, cloned
         warm = state["warm_start"]
-        assert warm["steps"] == 64 and warm["seconds"] > 0 and np.isfinite(warm["nll"])
+        assert warm["steps"] == 64 and warm["seconds"] > 0 and warm["std"] >= 0.1
         assert json.loads((out / "result.json").read_text())["warm_start"] == warm
     else:
         assert "warm_start" not in state

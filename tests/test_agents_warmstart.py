@@ -44,7 +44,8 @@ def test_demonstrations_keep_each_episode_apart(demos) -> None:
 @pytest.mark.parametrize("algorithm", ["ppo", "recurrent_ppo"])
 def test_cloning_fits_the_pd_actions_and_returns(demos, algorithm) -> None:
     """After cloning, the policy's deterministic action is several times closer to the PD's
-    than the untrained network's, and the critic's error on the returns falls."""
+    than the untrained network's, the critic's error on the returns falls, and the policy's
+    spread is the fit's residual instead of the untrained unit deviation."""
     import torch
 
     from pourbench.agents.models import make_model
@@ -52,9 +53,14 @@ def test_cloning_fits_the_pd_actions_and_returns(demos, algorithm) -> None:
 
     d, env = demos
     torch.manual_seed(0)
+    untrained = clone(make_model(algorithm, env, n_steps=64, verbose=0), d, 1, lr=0.0)
+    torch.manual_seed(0)
     model = make_model(algorithm, env, n_steps=64, verbose=0)
-    untrained = clone(model, d, 1, lr=0.0)  # a pass that measures and changes nothing
+    assert torch.exp(model.policy.log_std).tolist() == [1.0, 1.0]
     fitted = clone(model, d, 30)
     assert fitted["action_mse"] < untrained["action_mse"] / 2.5
-    assert fitted["nll"] < untrained["nll"]
     assert fitted["value_mse"] < untrained["value_mse"] / 2.0
+    std = torch.exp(model.policy.log_std.detach())
+    assert float(std.mean()) == pytest.approx(fitted["std"], rel=1e-6)
+    assert bool((std >= 0.1 - 1e-6).all()) and float(std.max()) < 0.5
+    assert fitted["std"] < untrained["std"]

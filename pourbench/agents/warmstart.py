@@ -3,11 +3,14 @@
 The thesis trains PourNet from scratch on Algorithm 5's sparse reward, which a CPU budget of a
 few hours may not reach. ``pourbench train --warm-start-steps N`` first rolls the PD baseline
 (:mod:`pourbench.agents.pd`) in the training's own vector env for ``N`` environment steps
-(:func:`demonstrate`), then fits the new model to them (:func:`clone`): its policy to the PD's
-actions by maximum likelihood (the Gaussian's mean and its state-independent log standard
-deviation, so the exploration PPO starts from is the spread the fit leaves), and its value
-network to the demonstrations' discounted returns, so that PPO's first advantages are not
-those of an untrained critic. Training then goes on as without it.
+(:func:`demonstrate`), then fits the new model to them (:func:`clone`): the policy's mean
+action to the PD's by least squares and its value network to the demonstrations' discounted
+returns, so that PPO's first advantages are not those of an untrained critic; then the
+policy's state-independent standard deviation is set to its maximum-likelihood value, the
+mean's residual per action dimension (at least ``min_std``), so that PPO explores around the
+cloned actions with the spread the fit leaves rather than the untrained network's unit
+deviation (gradient steps alone move a log deviation by about the learning rate per step).
+Training then goes on as without it.
 
 Written by hand: the ``imitation`` library's behaviour cloning covers SB3's feed-forward
 policies but not sb3-contrib's recurrent ones. Here both go through the policy's own
@@ -87,13 +90,17 @@ def clone(
     epochs: int,
     lr: float = 1e-3,
     seed: int = 0,
+    min_std: float = 0.1,
     progress: bool = False,
 ) -> dict[str, float]:
     """Fit ``model``'s policy (PPO or RecurrentPPO) to ``demos`` for ``epochs`` passes: the
-    actions' negative log-likelihood plus half the value network's squared error on the
-    returns of the episodes that ended. Returns the last epoch's mean action error (the
-    deterministic action's squared distance to the PD's), its negative log-likelihood and
-    its value error. ``progress`` shows a progress bar over the epochs."""
+    mean action's squared distance to the PD's plus half the value network's squared error
+    on the returns of the episodes that ended; then set the policy's standard deviation to
+    the mean's root-mean-square residual per action dimension, at least ``min_std``.
+    Returns the last epoch's mean action error (the squared distance, summed over the action,
+    of the mean clipped to the action bounds), its value error and the standard deviation
+    set (``std``, the mean over the action's dimensions). ``progress`` shows a progress bar
+    over the epochs."""
     import torch
     from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
     from sb3_contrib.common.recurrent.type_aliases import RNNStates
@@ -120,6 +127,7 @@ def clone(
         samples = T * n
         size = min(256, samples)
     stats: dict[str, float] = {}
+    residual, count = torch.zeros(demos.actions.shape[-1], dtype=torch.float64), 0
     bar = tqdm(range(epochs), desc="cloning the PD", unit="epoch", disable=not progress)
     for _ in bar:
         if recurrent:
@@ -127,7 +135,9 @@ def clone(
         else:
             perm = rng.permutation(samples)
             order = [perm[i : i + size] for i in range(0, samples, size)]
-        sums = np.zeros(3)
+        sums = np.zeros(2)
+        residual.zero_()
+        count = 0
         for idx in order:
             if recurrent:
                 obs, act = as_tensor(demos.obs, idx), as_tensor(demos.actions, idx)
@@ -135,27 +145,45 @@ def clone(
                 start = as_tensor(demos.starts, idx)
                 shape = (policy.lstm_actor.num_layers, len(idx), policy.lstm_actor.hidden_size)
                 zero = (torch.zeros(shape), torch.zeros(shape))
-                values, logp, _ = policy.evaluate_actions(obs, act, RNNStates(zero, zero), start)
-                with torch.no_grad():
-                    mean = policy.get_distribution(obs, zero, start)[0].distribution.mean
+                mean, values = _mean_and_value(policy, obs, RNNStates(zero, zero), start)
             else:
                 flat = [a.reshape(-1, *a.shape[2:])[idx] for a in (demos.obs, demos.actions)]
                 obs, act = (torch.as_tensor(a, dtype=torch.float32) for a in flat)
                 ret = torch.as_tensor(demos.returns.reshape(-1)[idx], dtype=torch.float32)
                 mask = torch.as_tensor(demos.complete.reshape(-1)[idx], dtype=torch.float32)
-                values, logp, _ = policy.evaluate_actions(obs, act)
-                with torch.no_grad():
-                    mean = policy.get_distribution(obs).distribution.mean
+                mean, values = _mean_and_value(policy, obs)
             err = ((values.flatten() - ret) ** 2 * mask).sum() / mask.sum().clamp(min=1.0)
-            nll = -logp.mean()
-            loss = nll + 0.5 * err
+            fit = ((mean - act) ** 2).sum(1).mean()
+            loss = fit + 0.5 * err
             optimiser.zero_grad()
             loss.backward()
             torch.nn.utils.clip_grad_norm_(policy.parameters(), 0.5)
             optimiser.step()
-            mse = float(((mean.clamp(-1.0, 1.0) - act) ** 2).sum(1).mean())
-            sums += (mse, float(nll.detach()), float(err.detach()))
-        stats = dict(zip(("action_mse", "nll", "value_mse"), sums / len(order), strict=True))
+            with torch.no_grad():
+                residual += ((mean - act) ** 2).sum(0).double()
+                count += len(act)
+                mse = float(((mean.clamp(-1.0, 1.0) - act) ** 2).sum(1).mean())
+            sums += (mse, float(err.detach()))
+        stats = dict(zip(("action_mse", "value_mse"), sums / len(order), strict=True))
         bar.set_postfix(stats)
+    # the last epoch's residual, per action dimension: the Gaussian's maximum-likelihood spread
+    std = (residual / max(count, 1)).sqrt().clamp(min=min_std)
+    with torch.no_grad():
+        policy.log_std.copy_(std.log().to(policy.log_std.dtype))
     policy.set_training_mode(False)
-    return stats
+    return {**stats, "std": float(std.mean())}
+
+
+def _mean_and_value(policy: Any, obs: Any, states: Any = None, starts: Any = None) -> tuple:
+    """The policy's mean action and its value for ``obs`` (a recurrent policy: over its
+    sequences from ``states``, reset at ``starts``), both differentiable."""
+    if states is None:
+        features = policy.extract_features(obs)
+        latent_pi, latent_vf = policy.mlp_extractor(features)
+    else:
+        features = policy.extract_features(obs)
+        latent_pi, _ = policy._process_sequence(features, states.pi, starts, policy.lstm_actor)
+        latent_vf, _ = policy._process_sequence(features, states.vf, starts, policy.lstm_critic)
+        latent_pi = policy.mlp_extractor.forward_actor(latent_pi)
+        latent_vf = policy.mlp_extractor.forward_critic(latent_vf)
+    return policy.action_net(latent_pi), policy.value_net(latent_vf)
