@@ -1,0 +1,83 @@
+"""Shipping a finished training run as a named policy: the same actions, a smaller file
+(no optimiser moments), and the metadata the training issue asks for."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pourbench.errors import InvalidParameterError
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """A RecurrentPPO run after one update (so its optimiser holds moments), with the
+    state.json and result.json a finished ``pourbench train`` leaves."""
+    from pourbench.agents.models import make_model
+    from pourbench.agents.sb3 import SB3PourVecEnv
+
+    run = tmp_path_factory.mktemp("run")
+    env = SB3PourVecEnv(1, seed=0, workers=1, liquid="water")
+    try:
+        model = make_model("recurrent_ppo", env, n_steps=8, batch_size=8, verbose=0)
+        model.learn(8)
+        model.save(run / "model.zip")
+    finally:
+        env.close()
+    session = {"command": "pourbench train --x", "git_sha": "abc1234", "machine": "m",
+               "date": "2026-12-02 08:00 UTC", "timesteps": 8, "session_s": 3.0}  # fmt: skip
+    state = {
+        "args": {"algorithm": "recurrent_ppo", "policy": "lstm", "seed": 0},
+        "timesteps": 8,
+        "train_s": 3.0,
+        "sessions": 1,
+        "history": [session],
+        "warm_start": {"steps": 64, "std": 0.2},
+    }
+    (run / "state.json").write_text(json.dumps(state))
+    result = {
+        "mean_abs_error_g": 7.5,
+        "policy": "mean abs error 7.5 g",
+        "random_mean_abs_error_g": 99.0,
+    }
+    (run / "result.json").write_text(json.dumps(result))
+    return run, model
+
+
+def test_a_shipped_policy_acts_as_the_run_and_says_where_it_came_from(finished_run, tmp_path):
+    from pourbench.agents.loading import load_sb3_policy, model_policy
+    from pourbench.agents.ship import ship
+
+    run, model = finished_run
+    meta_path = ship(run, "pournet-test", policy_dir=tmp_path)
+    shipped = tmp_path / "pournet-test.zip"
+    assert shipped.stat().st_size < 0.6 * (run / "model.zip").stat().st_size
+    meta = json.loads(meta_path.read_text())
+    assert meta["commands"] == ["pourbench train --x"] and meta["git_sha"] == ["abc1234"]
+    assert (meta["steps"], meta["seed"], meta["wall_time_s"]) == (8, 0, 3.0)
+    assert meta["machine"] == ["m"] and meta["warm_start"]["steps"] == 64
+    assert meta["evaluation"]["mean_abs_error_g"] == 7.5
+    original, copy = model_policy(model), load_sb3_policy(shipped)
+    rng = np.random.default_rng(0)
+    for t in range(5):  # a sequence, so the LSTM's state carries over as it does in a pour
+        obs = rng.uniform(0.0, 100.0, 12).astype(np.float32)
+        assert np.array_equal(original(obs, t == 0), copy(obs, t == 0))
+
+
+@pytest.mark.parametrize("name", ["PourNet", "a b", "", "-x", None])
+def test_a_bad_name_is_refused(finished_run, tmp_path, name) -> None:
+    from pourbench.agents.ship import ship
+
+    with pytest.raises(InvalidParameterError, match="lowercase letters, digits and dashes"):
+        ship(finished_run[0], name, policy_dir=tmp_path)  # type: ignore[arg-type]
+    assert not list(tmp_path.iterdir())
+
+
+def test_an_unfinished_run_is_refused(tmp_path) -> None:
+    from pourbench.agents.ship import ship
+
+    (tmp_path / "model.zip").write_bytes(b"")
+    with pytest.raises(InvalidParameterError, match="not a finished training run: no state"):
+        ship(tmp_path, "pournet-lstm", policy_dir=tmp_path / "out")
