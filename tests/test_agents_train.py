@@ -160,6 +160,12 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
         ({"n_steps": 1, "num_envs": 1}, r"n_steps \* num_envs .* must be >= 2"),
         ({"warm_start_steps": -1}, "warm_start_steps must be >= 0, got -1"),
         ({"clone_epochs": 0}, "clone_epochs must be >= 1, got 0"),
+        ({"learning_rate": 0.0}, "learning_rate must be > 0"),
+        ({"target_kl": -0.01}, "target_kl must be >= 0"),
+        (
+            {"algorithm": "sac", "icm": False, "curriculum": False, "target_kl": 0.02},
+            "target_kl=0.02 limits PPO's updates; SAC has none",
+        ),
         (
             {"algorithm": "sac", "icm": False, "curriculum": False, "warm_start_steps": 64},
             "warm_start_steps=64: the PD warm start clones into PPO or RecurrentPPO, not SAC",

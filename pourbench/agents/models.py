@@ -67,6 +67,8 @@ def make_model(
     n_steps: int = 64,
     batch_size: int = 256,
     seed: int = 0,
+    learning_rate: float = 3e-4,
+    target_kl: float | None = None,
     tensorboard_log: str | None = None,
     verbose: int = 1,
 ) -> Any:
@@ -79,6 +81,9 @@ def make_model(
         batch_size: minibatch size in samples (at most the rollout, ``n_steps × num_envs``,
             for PPO; SAC's batch from its replay buffer).
         seed: seed of the networks and the sampling.
+        learning_rate: Adam's step size (SB3's default 3e-4).
+        target_kl: PPO and RecurrentPPO stop an update's epochs once the policy's KL
+            divergence from the rollout's passes this (None: no limit, SB3's default).
         tensorboard_log: TensorBoard folder (None: none, or the logger set later).
         verbose: SB3's verbosity.
 
@@ -93,6 +98,7 @@ def make_model(
         "verbose": verbose,
         "tensorboard_log": tensorboard_log,
         "gamma": GAMMA,
+        "learning_rate": learning_rate,
     }
     rollout = n_steps * env.num_envs
     if algorithm == "ppo":
@@ -101,6 +107,7 @@ def make_model(
             env,
             n_steps=n_steps,
             batch_size=min(batch_size, rollout),
+            target_kl=target_kl,
             policy_kwargs={
                 "net_arch": {"pi": list(HIDDEN), "vf": list(HIDDEN)},
                 "features_extractor_class": ScaledObservation,
@@ -115,6 +122,7 @@ def make_model(
             env,
             n_steps=n_steps,
             batch_size=min(batch_size, rollout),
+            target_kl=target_kl,
             policy_kwargs={
                 "lstm_hidden_size": LSTM_UNITS,
                 "n_lstm_layers": 1,

@@ -36,11 +36,20 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from pourbench.errors import InvalidParameterError, check_int, check_positive
+from pourbench.errors import InvalidParameterError, check_finite, check_int, check_positive
 
 ALGORITHMS = ("ppo", "recurrent_ppo", "sac")
 POLICIES = ("mlp", "lstm")
-_SAME_ON_RESUME = ("algorithm", "policy", "icm", "curriculum", "num_envs", "n_steps")
+_SAME_ON_RESUME = (
+    "algorithm",
+    "policy",
+    "icm",
+    "curriculum",
+    "num_envs",
+    "n_steps",
+    "learning_rate",
+    "target_kl",
+)
 
 
 @dataclass
@@ -82,6 +91,11 @@ class TrainArgs:
             trains (pourbench.agents.warmstart; 0: none, the thesis' start from scratch).
             They and the cloning count in a time budget, not in the step budget.
         clone_epochs: passes of the cloning over the demonstrations.
+        learning_rate: Adam's step size.
+        target_kl: PPO and RecurrentPPO stop an update's epochs once the policy has moved
+            this far (KL divergence) from the one that collected the rollout (0: no limit);
+            a cloned policy's small spread makes its likelihood ratios steep, and a limit
+            keeps PPO's first updates from undoing the clone.
     """
 
     algorithm: str = "ppo"
@@ -107,6 +121,8 @@ class TrainArgs:
     resume: bool = False
     warm_start_steps: int = 0
     clone_epochs: int = 30
+    learning_rate: float = 3e-4
+    target_kl: float = 0.0
 
     def __post_init__(self) -> None:
         """Every setting checked at construction, before any training: a run that trains is
@@ -152,6 +168,12 @@ class TrainArgs:
         for name in ("seed", "workers", "eval_every_steps", "warm_start_steps"):
             check_int(name, getattr(self, name), minimum=0)
         check_int("clone_epochs", self.clone_epochs, minimum=1)
+        check_positive("learning_rate", self.learning_rate)
+        check_finite("target_kl", self.target_kl, minimum=0.0)
+        if self.algorithm == "sac" and self.target_kl:
+            raise InvalidParameterError(
+                f"target_kl={self.target_kl!r} limits PPO's updates; SAC has none"
+            )
         if self.algorithm == "sac" and self.warm_start_steps:
             raise InvalidParameterError(
                 f"warm_start_steps={self.warm_start_steps!r}: the PD warm start clones into "
@@ -328,7 +350,8 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         else:
             model = make_model(
                 args.algorithm, venv, n_steps=args.n_steps, batch_size=args.batch_size,
-                seed=args.seed,
+                seed=args.seed, learning_rate=args.learning_rate,
+                target_kl=args.target_kl or None,
             )  # fmt: skip
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
