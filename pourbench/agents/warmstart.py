@@ -14,8 +14,9 @@ Training then goes on as without it.
 
 Written by hand: the ``imitation`` library's behaviour cloning covers SB3's feed-forward
 policies but not sb3-contrib's recurrent ones. Here both go through the policy's own
-``evaluate_actions``; the LSTM runs over each world's whole demonstration from a zero state,
-reset at its episode starts, as it does when it acts.
+feature extractor, LSTMs and heads (the steps of its ``evaluate_actions``, without the
+distribution); the LSTM runs over each world's whole demonstration from a zero state, reset
+at its episode starts, as it does when it acts.
 """
 
 from __future__ import annotations
@@ -177,13 +178,17 @@ def clone(
 def _mean_and_value(policy: Any, obs: Any, states: Any = None, starts: Any = None) -> tuple:
     """The policy's mean action and its value for ``obs`` (a recurrent policy: over its
     sequences from ``states``, reset at ``starts``), both differentiable."""
+    features = policy.extract_features(obs)
     if states is None:
-        features = policy.extract_features(obs)
         latent_pi, latent_vf = policy.mlp_extractor(features)
     else:
-        features = policy.extract_features(obs)
         latent_pi, _ = policy._process_sequence(features, states.pi, starts, policy.lstm_actor)
-        latent_vf, _ = policy._process_sequence(features, states.vf, starts, policy.lstm_critic)
+        if policy.lstm_critic is not None:
+            latent_vf, _ = policy._process_sequence(features, states.vf, starts, policy.lstm_critic)
+        elif policy.shared_lstm:
+            latent_vf = latent_pi.detach()
+        else:
+            latent_vf = policy.critic(features)
         latent_pi = policy.mlp_extractor.forward_actor(latent_pi)
         latent_vf = policy.mlp_extractor.forward_critic(latent_vf)
     return policy.action_net(latent_pi), policy.value_net(latent_vf)
