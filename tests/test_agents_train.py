@@ -162,6 +162,7 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
         ({"clone_epochs": 0}, "clone_epochs must be >= 1, got 0"),
         ({"learning_rate": 0.0}, "learning_rate must be > 0"),
         ({"target_kl": -0.01}, "target_kl must be >= 0"),
+        ({"final_error_per_g": float("nan")}, "final_error_per_g must be finite"),
         (
             {"algorithm": "sac", "icm": False, "curriculum": False, "target_kl": 0.02},
             "target_kl=0.02 limits PPO's updates; SAC has none",

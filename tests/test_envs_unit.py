@@ -93,7 +93,9 @@ def test_tilt_bounds_and_bad_actions() -> None:
         _handle((0.0, 0.0), ABOVE, 0.0, mode="teleport")
 
 
-def _reward(pouring=False, collided=False, finished=False, err=0.0, avg=0.0, max_steps=200):
+def _reward(
+    pouring=False, collided=False, finished=False, err=0.0, avg=0.0, max_steps=200, per_g=0.0
+):
     return extrinsic_reward(
         np.array([pouring]),
         np.array([collided]),
@@ -101,7 +103,7 @@ def _reward(pouring=False, collided=False, finished=False, err=0.0, avg=0.0, max
         np.array([err]),
         np.array([avg]),
         max_steps,
-        RewardConfig(),
+        RewardConfig(final_error_per_g=per_g),
     )[0]
 
 
@@ -115,6 +117,15 @@ def test_algorithm5_terms() -> None:
     assert _reward(finished=True, err=15.0, avg=15.0) == 1.0  # only the average bonus
     assert _reward(finished=True, err=5.0, avg=25.0) == 1.0  # only the episode bonus
     assert _reward(finished=True, err=30.0, avg=30.0) == 0.0
+
+
+def test_the_denser_option_counts_every_gram_of_the_final_error() -> None:
+    assert _reward(finished=True, err=5.0, avg=15.0, per_g=0.02) == pytest.approx(2.0 - 0.1)
+    assert _reward(finished=True, err=30.0, avg=30.0, per_g=0.02) == pytest.approx(-0.6)
+    assert _reward(pouring=True, err=80.0, per_g=0.02) == pytest.approx(-1 / 200)  # not yet
+    assert _reward(collided=True, finished=True, err=80.0, per_g=0.02) == -1.0  # collision
+    with pytest.raises(ValueError, match="final_error_per_g must be >= 0"):
+        RewardConfig(final_error_per_g=-0.1)
 
 
 def test_error_history_window() -> None:

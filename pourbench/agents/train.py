@@ -49,6 +49,7 @@ _SAME_ON_RESUME = (
     "n_steps",
     "learning_rate",
     "target_kl",
+    "final_error_per_g",
 )
 
 
@@ -96,6 +97,9 @@ class TrainArgs:
             this far (KL divergence) from the one that collected the rollout (0: no limit);
             a cloned policy's small spread makes its likelihood ratios steep, and a limit
             keeps PPO's first updates from undoing the clone.
+        final_error_per_g: reward taken off per gram of error at an episode's normal end,
+            a denser reward than the thesis' Algorithm 5 (0: Algorithm 5 alone;
+            pourbench.envs.reward.RewardConfig).
     """
 
     algorithm: str = "ppo"
@@ -123,6 +127,7 @@ class TrainArgs:
     clone_epochs: int = 30
     learning_rate: float = 3e-4
     target_kl: float = 0.0
+    final_error_per_g: float = 0.0
 
     def __post_init__(self) -> None:
         """Every setting checked at construction, before any training: a run that trains is
@@ -170,6 +175,7 @@ class TrainArgs:
         check_int("clone_epochs", self.clone_epochs, minimum=1)
         check_positive("learning_rate", self.learning_rate)
         check_finite("target_kl", self.target_kl, minimum=0.0)
+        check_finite("final_error_per_g", self.final_error_per_g, minimum=0.0)
         if self.algorithm == "sac" and self.target_kl:
             raise InvalidParameterError(
                 f"target_kl={self.target_kl!r} limits PPO's updates; SAC has none"
@@ -333,6 +339,10 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         env_kw["lesson"] = lesson_at(done, load_curriculum())
     if args.target_g:
         env_kw["target_range_g"] = (args.target_g, args.target_g)
+    if args.final_error_per_g:
+        from pourbench.envs.reward import RewardConfig
+
+        env_kw["reward"] = RewardConfig(final_error_per_g=args.final_error_per_g)
     base = SB3PourVecEnv(
         args.num_envs, seed=args.seed + 1000 * state["sessions"], workers=args.workers or None,
         **env_kw,

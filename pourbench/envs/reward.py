@@ -5,6 +5,10 @@ Per step, while the received weight is below ``target − tolerance`` (still pou
 bonus). When an episode ends normally: ``+1`` if its pouring error is at most ``success_g``
 (10 g) and ``+1`` if the average error over the last ``n`` successfully completed episodes
 (this one included) is at most ``average_success_g`` (20 g).
+
+A denser option, off in the thesis' reward: ``final_error_per_g`` > 0 also takes
+``final_error_per_g × error`` (g) off the reward at a normal end, so that every gram of
+the final error counts and not only the two thresholds.
 """
 
 from __future__ import annotations
@@ -24,16 +28,20 @@ class RewardConfig:
         success_g: episode error that earns the first bonus, g.
         average_success_g: running average error that earns the second bonus, g.
         window: number ``n`` of past completed episodes in the running average.
+        final_error_per_g: reward taken off per gram of error at a normal end (0: the
+            thesis' Algorithm 5).
     """
 
     success_g: float = 10.0
     average_success_g: float = 20.0
     window: int = 10
+    final_error_per_g: float = 0.0
 
     def __post_init__(self) -> None:
         check_finite("reward.success_g", self.success_g, minimum=0.0)
         check_finite("reward.average_success_g", self.average_success_g, minimum=0.0)
         check_int("reward.window", self.window, minimum=1)
+        check_finite("reward.final_error_per_g", self.final_error_per_g, minimum=0.0)
 
 
 def extrinsic_reward(
@@ -62,6 +70,8 @@ def extrinsic_reward(
     bonus = finished & ~collided
     r = r + np.where(bonus & (error_g <= config.success_g), 1.0, 0.0)
     r = r + np.where(bonus & (average_error_g <= config.average_success_g), 1.0, 0.0)
+    if config.final_error_per_g:
+        r = r - np.where(bonus, config.final_error_per_g * error_g, 0.0)
     return r
 
 
