@@ -1,10 +1,13 @@
-"""``pourbench demo``: the liquid core on its own, on the CPU.
+"""``pourbench demo``: a pour on the CPU, with a rerun recording.
 
-A source cup filled with 200 g of water is tilted about its lip over a receiving cup standing
-on a MuJoCo force sensor; the poured / spilled / remaining grams and the sensor's reading are
-printed, and a rerun recording of particles and containers is written (moved into place only
-when the run finishes, so a failed run keeps the previous one). The pouring task with its
-PD baseline is ``pourbench eval``.
+With the shipped ``pournet-lstm`` policy (:data:`DEMO_POLICY`), it pours ``--target-g`` of
+the liquid from ``--mass-g`` in the pouring container on ``pourbench/Pour-v0``, one episode,
+and prints the grams poured, spilled and left, the scale's reading and the error. Until that
+policy ships (or with ``--scripted``), the liquid core on its own: a source cup of
+``--mass-g`` is tilted about its lip over a receiving cup standing on a MuJoCo force sensor
+for ``--seconds``, and the poured / spilled / remaining grams and the sensor's reading are
+printed. The recording is moved into place only when the run finishes, so a failed run
+keeps the previous one. Other policies pour with ``pourbench eval``.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ import sys
 
 from tqdm import tqdm
 
-from pourbench.argtypes import positive_float
+from pourbench.argtypes import positive_float, shipped_policies
 from pourbench.errors import InvalidParameterError, check_positive
 from pourbench.outputs import check_output_path
 
@@ -27,6 +30,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=positive_float, default=4.0, help="simulated time, s")
     parser.add_argument("--out", default="runs/demo.rrd", help="rerun recording to write")
     parser.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    parser.add_argument(
+        "--target-g", type=positive_float, default=100.0, help="target of the policy's pour, g"
+    )
+    parser.add_argument(
+        "--scripted",
+        action="store_true",
+        help=f"the scripted tilt even when {DEMO_POLICY} ships",
+    )
+
+
+DEMO_POLICY = "pournet-lstm"
+"""The shipped policy the demo pours with, once it exists."""
 
 
 def run_demo(args: argparse.Namespace) -> int:
@@ -49,6 +64,8 @@ def run_demo(args: argparse.Namespace) -> int:
             f"seconds must be at least one solver step ({config.dt:g} s), got {args.seconds!r}"
         )
     check_output_path(args.out)  # before the scene is built: a bad path fails at once
+    if DEMO_POLICY in shipped_policies() and not getattr(args, "scripted", False):
+        return _policy_demo(args, mass_g)
     scene = two_cup_scene(args.liquid, mass_g, config=config)
     solver = scene.solver
     rec = FluidRecorder(args.out, solver)
@@ -77,3 +94,45 @@ def run_demo(args: argparse.Namespace) -> int:
     print(f"receiving cup's force sensor:  {scene.weight_g():7.1f} g")
     print(f"recording: {out.resolve()}  (open with `rerun {out}`)")
     return 1 if solver.diverged().any() else 0
+
+
+def _policy_demo(args: argparse.Namespace, mass_g: float) -> int:
+    """One Pour-v0 episode of :data:`DEMO_POLICY` pouring ``args.target_g`` of
+    ``args.liquid`` from ``mass_g``, recorded to ``args.out``."""
+    from pourbench.agents.loading import load_policy
+    from pourbench.envs.pour import PourEnv
+
+    target_g = check_positive("target_g", getattr(args, "target_g", 100.0))
+    if target_g >= mass_g:
+        raise InvalidParameterError(
+            f"target_g ({target_g:g} g) must be below mass_g ({mass_g:g} g), the liquid the "
+            "pouring container starts with"
+        )
+    act = load_policy(DEMO_POLICY)
+    env = PourEnv(liquid=args.liquid, record_path=args.out)
+    try:
+        obs, info = env.reset(seed=0, options={"target_g": target_g, "initial_g": mass_g})
+        print(
+            f"{DEMO_POLICY} pours {target_g:g} g of {info['liquid']} from {mass_g:g} g in the "
+            f"{info['container']}",
+            file=sys.stderr,
+        )
+        bar = tqdm(desc="pouring", unit="step", file=sys.stderr)
+        new, done = True, False
+        while not done:
+            obs, _, term, trunc, info = env.step(act(obs, new))
+            new, done = False, term or trunc
+            bar.update()
+        bar.close()
+    except BaseException:  # interrupted or failed: keep the previous recording
+        env.discard_recording()
+        raise
+    finally:
+        env.close()
+    print(f"poured into the receiving container: {info['poured_g']:7.1f} g")
+    print(f"spilled:                             {info['spilled_g']:7.1f} g")
+    print(f"left in the pouring container:       {info['remaining_g']:7.1f} g")
+    print(f"scale reading (filtered):            {info['measured_g']:7.1f} g")
+    print(f"error against the target:            {info['error_g']:7.1f} g")
+    print(f"recording: {args.out}  (open with `rerun {args.out}`)")
+    return 1 if info["sim_diverged"] else 0

@@ -217,3 +217,36 @@ def test_an_atomic_write_whose_partial_sibling_is_a_folder_keeps_the_old_file(tm
     with pytest.raises(OutputPathError, match=r"t\.json\.partial' is a folder"):
         write_text_atomic(target, "new")
     assert target.read_text() == "old" and (tmp_path / "t.json.partial").is_dir()
+
+
+def test_demo_pours_with_the_shipped_policy_once_it_exists(tmp_path, monkeypatch, capsys):
+    """With ``pournet-lstm`` shipped, the demo is one Pour-v0 episode of that policy: here the
+    PD baseline stands in for it (the demo asks load_policy for the shipped name), and the
+    grams it prints add up and match the target within the PD's error."""
+    import pourbench.agents.loading as loading
+    import pourbench.demo as demo
+
+    asked, load = [], loading.load_policy
+
+    def shipped_pd(name, seed=0):
+        asked.append(name)
+        return load("pd", seed)
+
+    monkeypatch.setattr(demo, "shipped_policies", lambda: [demo.DEMO_POLICY])
+    monkeypatch.setattr(loading, "load_policy", shipped_pd)
+    out = tmp_path / "pour.rrd"
+    argv = ["demo", "--mass-g", "200", "--target-g", "100", "--out", str(out)]
+    assert main(argv) == 0
+    assert asked == ["pournet-lstm"]
+    text = capsys.readouterr().out
+    grams = {
+        key: float(re.search(rf"{key}:\s+([-\d.]+) g", text).group(1))
+        for key in ("receiving container", "spilled", "pouring container", "target")
+    }
+    assert grams["target"] <= 10.0
+    assert abs(grams["receiving container"] - 100.0) == pytest.approx(grams["target"], abs=0.01)
+    total = grams["receiving container"] + grams["spilled"] + grams["pouring container"]
+    assert total == pytest.approx(200.0, abs=2.0)  # whole particles, some still in flight
+    assert out.stat().st_size > 10_000
+    assert main([*argv, "--target-g", "250"]) == 2  # more than the container starts with
+    assert "target_g (250 g) must be below mass_g (200 g)" in capsys.readouterr().err

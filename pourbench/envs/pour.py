@@ -164,6 +164,12 @@ class PourEnv(gym.Env):
                 ) from None
         return render_world(self.batch, 0, self._renderer)
 
+    def discard_recording(self) -> None:
+        """Drop the recording being written (an earlier one at ``record_path`` stays)."""
+        if self._recorder is not None:
+            self._recorder.discard()
+            self._recorder = None
+
     def close(self) -> None:
         if self._recorder is not None:
             self._recorder.close()
