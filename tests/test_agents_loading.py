@@ -10,6 +10,7 @@ from stable_baselines3 import SAC
 from pourbench.agents import load_policy
 from pourbench.agents.pd import PDConfig, PDPourer
 from pourbench.agents.sb3 import SB3PourVecEnv
+from pourbench.argtypes import shipped_policies
 from pourbench.cli import main
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -57,3 +58,13 @@ def test_unknown_names_say_which_exist(capsys) -> None:
     assert "'pournet-lstm' is neither a policy (pd, random" in err
     with pytest.raises(ValueError, match=r"policy must be one of .* got 7"):
         load_policy(7)
+
+
+@pytest.mark.parametrize("name", shipped_policies())
+def test_each_shipped_policy_pours_100_g_of_water_within_10_g(name) -> None:
+    """The training issue's bar for a shipped policy, on three fixed seeds (no policy ships
+    until its run finishes: then this runs for each)."""
+    from pourbench.agents.evaluate import evaluate
+
+    result = evaluate(name, episodes=3, target_g=100.0, seed=0, liquid="water")
+    assert result.errors_g.max() <= 10.0, result.summary()
