@@ -600,3 +600,22 @@ def test_a_liquid_without_a_physical_viscosity_is_refused() -> None:
         env.reset(seed=0, options={"liquid": flex_only})
     obs, *_ = env.step(np.zeros(2))
     assert obs[3] == pytest.approx(4.0)
+
+
+def test_the_denser_reward_charges_the_final_error_at_the_step_limit() -> None:
+    """A policy that never pours is charged its whole target at the step limit by the denser
+    option, and nothing beyond the step penalty by Algorithm 5 alone."""
+    from pourbench.envs.pour import PourEnv
+    from pourbench.envs.reward import RewardConfig
+
+    rewards = []
+    for per_g in (0.0, 0.02):
+        env = PourEnv(liquid="water", max_steps=3, reward=RewardConfig(final_error_per_g=per_g))
+        env.reset(seed=0, options={"target_g": 50.0})
+        for _ in range(3):
+            _, r, term, trunc, info = env.step(np.zeros(2, np.float32))
+        env.close()
+        assert trunc and not term and info["error_g"] == 50.0
+        rewards.append(r)
+    assert rewards[0] == pytest.approx(-1.0 / 3.0)
+    assert rewards[1] == pytest.approx(-1.0 / 3.0 - 0.02 * 50.0)

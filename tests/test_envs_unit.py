@@ -94,7 +94,14 @@ def test_tilt_bounds_and_bad_actions() -> None:
 
 
 def _reward(
-    pouring=False, collided=False, finished=False, err=0.0, avg=0.0, max_steps=200, per_g=0.0
+    pouring=False,
+    collided=False,
+    finished=False,
+    err=0.0,
+    avg=0.0,
+    max_steps=200,
+    per_g=0.0,
+    timed_out=False,
 ):
     return extrinsic_reward(
         np.array([pouring]),
@@ -104,6 +111,7 @@ def _reward(
         np.array([avg]),
         max_steps,
         RewardConfig(final_error_per_g=per_g),
+        np.array([timed_out]),
     )[0]
 
 
@@ -124,6 +132,9 @@ def test_the_denser_option_counts_every_gram_of_the_final_error() -> None:
     assert _reward(finished=True, err=30.0, avg=30.0, per_g=0.02) == pytest.approx(-0.6)
     assert _reward(pouring=True, err=80.0, per_g=0.02) == pytest.approx(-1 / 200)  # not yet
     assert _reward(collided=True, finished=True, err=80.0, per_g=0.02) == -1.0  # collision
+    # the step limit charges it too: never finishing does not escape it
+    assert _reward(timed_out=True, err=80.0, per_g=0.02) == pytest.approx(-1.6)
+    assert _reward(timed_out=True, err=80.0) == 0.0  # Algorithm 5 alone: nothing
     with pytest.raises(ValueError, match="final_error_per_g must be >= 0"):
         RewardConfig(final_error_per_g=-0.1)
 

@@ -658,8 +658,9 @@ class PourBatch:
         self.history.add(done_now, info["error_g"][done_now])
         avg = self.history.average()
         pouring = self.filter.value_g < info["target_g"] - cfg.tolerance_g
+        timed_out = (self.steps >= cfg.max_steps) & ~collided & ~finished & ~diverged
         reward = extrinsic_reward(
-            pouring, collided, finished, info["error_g"], avg, cfg.max_steps, cfg.reward
+            pouring, collided, finished, info["error_g"], avg, cfg.max_steps, cfg.reward, timed_out
         )
         terminated = (collided | finished) & ~diverged
         truncated = ((self.steps >= cfg.max_steps) & ~terminated) | diverged

@@ -7,8 +7,9 @@ bonus). When an episode ends normally: ``+1`` if its pouring error is at most ``
 (this one included) is at most ``average_success_g`` (20 g).
 
 A denser option, off in the thesis' reward: ``final_error_per_g`` > 0 also takes
-``final_error_per_g × error`` (g) off the reward at a normal end, so that every gram of
-the final error counts and not only the two thresholds.
+``final_error_per_g × error`` (g) off the reward when an episode ends normally or at the
+step limit, so that every gram of the final error counts and not only the two thresholds
+(and a policy cannot escape it by never finishing).
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ class RewardConfig:
         success_g: episode error that earns the first bonus, g.
         average_success_g: running average error that earns the second bonus, g.
         window: number ``n`` of past completed episodes in the running average.
-        final_error_per_g: reward taken off per gram of error at a normal end (0: the
-            thesis' Algorithm 5).
+        final_error_per_g: reward taken off per gram of error at a normal end or at the
+            step limit (0: the thesis' Algorithm 5).
     """
 
     success_g: float = 10.0
@@ -52,6 +53,7 @@ def extrinsic_reward(
     average_error_g: np.ndarray,
     max_steps: int,
     config: RewardConfig = RewardConfig(),
+    timed_out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Algorithm 5's reward of one step for a batch of worlds.
 
@@ -64,6 +66,8 @@ def extrinsic_reward(
             including this one where ``finished``, g.
         max_steps: episode step limit.
         config: the constants.
+        timed_out: (n,) the episode reached the step limit this step without another end
+            (charged its final error by ``final_error_per_g``; Algorithm 5 gives it nothing).
     """
     r = np.where(pouring, -1.0 / max_steps, 0.0)
     r = r - np.where(collided, 1.0, 0.0)
@@ -71,7 +75,8 @@ def extrinsic_reward(
     r = r + np.where(bonus & (error_g <= config.success_g), 1.0, 0.0)
     r = r + np.where(bonus & (average_error_g <= config.average_success_g), 1.0, 0.0)
     if config.final_error_per_g:
-        r = r - np.where(bonus, config.final_error_per_g * error_g, 0.0)
+        charged = bonus if timed_out is None else bonus | timed_out
+        r = r - np.where(charged, config.final_error_per_g * error_g, 0.0)
     return r
 
 

@@ -614,9 +614,11 @@ class RobotPourEnv(gym.Env):
         avg = self.history.average()
         pouring = self.filter.value_g < self.target_g - cfg.tolerance_g
         hit = np.array([collided or planner_failed])
+        timed_out = np.array([self.steps >= cfg.max_steps and not (hit[0] or finished or diverged)])
         reward = extrinsic_reward(
-            pouring, hit, np.array([finished]), info["error_g"], avg, cfg.max_steps, cfg.reward
-        )
+            pouring, hit, np.array([finished]), info["error_g"], avg, cfg.max_steps, cfg.reward,
+            timed_out,
+        )  # fmt: skip
         terminated = (collided or planner_failed or finished) and not diverged
         truncated = (self.steps >= cfg.max_steps and not terminated) or diverged
         self._done = terminated or truncated
