@@ -21,7 +21,7 @@ from pourbench.envs.pour import PourEnv, check_settings
 from pourbench.errors import check_int
 
 POLICIES = BUILTIN_POLICIES
-__all__ = ["POLICIES", "EvalResult", "evaluate", "load_sb3_policy", "make_policy"]
+__all__ = ["POLICIES", "EvalResult", "evaluate", "load_sb3_policy", "make_policy", "pour_episode"]
 
 
 @dataclass(frozen=True)
@@ -55,6 +55,19 @@ class EvalResult:
             f"spill {np.mean(self.spilled_g):.2f} g, success {100 * self.success_rate:.0f} % "
             f"over {len(self.errors_g)} episodes"
         )
+
+
+def pour_episode(
+    env: Any, act: Callable[[np.ndarray, bool], np.ndarray], seed: int, options: dict
+) -> tuple[dict[str, Any], int]:
+    """Reset ``env`` (a pouring env: Pour-v0 or PourRobot-v0) with ``seed`` and ``options``
+    and let ``act`` pour until the episode ends; the last step's info and the step count."""
+    obs, info = env.reset(seed=seed, options=options)
+    new, done, steps = True, False, 0
+    while not done:
+        obs, _, term, trunc, info = env.step(act(obs, new))
+        new, done, steps = False, term or trunc, steps + 1
+    return info, steps
 
 
 def make_policy(name: str, seed: int = 0) -> Policy:
@@ -95,11 +108,7 @@ def evaluate(
     errors, spills, success, steps = [], [], [], []
     options = {} if target_g is None else {"target_g": float(target_g)}
     for ep in tqdm(range(episodes), desc="episodes", disable=not progress):
-        obs, _ = env.reset(seed=seed + ep, options=options)
-        new, done, n = True, False, 0
-        while not done:
-            obs, _, term, trunc, info = env.step(act(obs, new))
-            new, done, n = False, term or trunc, n + 1
+        info, n = pour_episode(env, act, seed + ep, options)
         errors.append(info["error_g"])
         spills.append(info["spilled_g"])
         success.append(bool(info["is_success"]))

@@ -82,7 +82,9 @@ def policies() -> tuple[str, ...]:
 def episode(policy: str, liquid: str, container: str | None, target_g: float, seed: int) -> dict:
     """One pour of ``target_g`` of ``liquid`` by ``policy`` on Pour-v0: from the ``novel``
     set's ``container``, or (None) from the training set as the env draws it."""
+    from pourbench.agents.evaluate import pour_episode
     from pourbench.agents.loading import load_policy
+    from pourbench.envs.core import known_liquid
     from pourbench.envs.pour import PourEnv
 
     env = PourEnv(liquid=liquid, container_set="training" if container is None else "novel")
@@ -91,13 +93,9 @@ def episode(policy: str, liquid: str, container: str | None, target_g: float, se
     options: dict[str, Any] = {"target_g": target_g}
     if container is not None:
         options["container"] = container
-    obs, info = env.reset(seed=seed, options=options)
-    density = float(obs[0])  # the observation's first feature: the liquid's density, g/ml
-    new, done, steps = True, False, 0
-    while not done:
-        obs, _, term, trunc, info = env.step(act(obs, new))
-        new, done, steps = False, term or trunc, steps + 1
+    info, steps = pour_episode(env, act, seed, options)
     env.close()
+    density = known_liquid(liquid).density / 1000.0  # g/ml
     return {
         "error_g": float(info["error_g"]),
         "error_ml": float(info["error_g"] / density),

@@ -72,6 +72,8 @@ def policy_name() -> str:
 
 def episode(env_name: str, liquid: str, target_g: float, seed: int, policy: str) -> dict:
     """One pour of ``target_g`` of ``liquid`` by ``policy`` on ``env_name`` (:data:`ENVS`)."""
+    from pourbench.agents.evaluate import pour_episode
+
     if env_name == "pour":
         from pourbench.envs.pour import PourEnv
 
@@ -82,11 +84,7 @@ def episode(env_name: str, liquid: str, target_g: float, seed: int, policy: str)
         env = RobotPourEnv(robot=env_name, liquid=liquid)
     act = load_policy(policy, seed)
     start = time.perf_counter()
-    obs, info = env.reset(seed=seed, options={"target_g": target_g})
-    new, done, steps = True, False, 0
-    while not done:
-        obs, _, term, trunc, info = env.step(act(obs, new))
-        new, done, steps = False, term or trunc, steps + 1
+    info, steps = pour_episode(env, act, seed, {"target_g": target_g})
     env.close()
     return {
         "error_g": float(info["error_g"]),
