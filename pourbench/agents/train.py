@@ -97,9 +97,9 @@ class TrainArgs:
             this far (KL divergence) from the one that collected the rollout (0: no limit);
             a cloned policy's small spread makes its likelihood ratios steep, and a limit
             keeps PPO's first updates from undoing the clone.
-        final_error_per_g: reward taken off per gram of error at an episode's normal end,
-            a denser reward than the thesis' Algorithm 5 (0: Algorithm 5 alone;
-            pourbench.envs.reward.RewardConfig).
+        final_error_per_g: reward taken off per gram of error when an episode ends
+            normally or at the step limit, a denser reward than the thesis' Algorithm 5 (0:
+            Algorithm 5 alone; pourbench.envs.reward.RewardConfig).
     """
 
     algorithm: str = "ppo"
