@@ -134,6 +134,12 @@ def apply_wall(t: wp.vec2, n: wp.vec3, x: wp.vec3) -> wp.vec3:
 
 
 @wp.func
+def wall_matrix(t: wp.vec2, n: wp.vec3) -> wp.mat33:
+    """The wall tensor T = T_n n nᵀ + T_t (I − n nᵀ) as a matrix."""
+    return t[1] * wp.identity(n=3, dtype=float) + (t[0] - t[1]) * wp.outer(n, n)
+
+
+@wp.func
 def pair_weight(r: wp.vec3, h: float, coef: float) -> wp.vec3:
     """u with u uᵀ = g r̂ r̂ᵀ, the pair's block of −∇² (``coef`` = 2(d+2) V · 45/(π h⁶))."""
     d2 = wp.dot(r, r)
@@ -275,8 +281,7 @@ def start(
     v_wall[i] = vb
     rhs[i] = vi + apply_wall(t, n, vb) * c
     sol[i] = vi
-    tm = t[1] * wp.identity(n=3, dtype=float) + (t[0] - t[1]) * wp.outer(n, n)
-    inv_m[i] = wp.inverse(wp.identity(n=3, dtype=float) + (diag[i] + tm) * c)
+    inv_m[i] = wp.inverse(wp.identity(n=3, dtype=float) + (diag[i] + wall_matrix(t, n)) * c)
     diag[i] = wp.mat33(0.0)
 
 
@@ -526,7 +531,7 @@ def body_drag(
     t = wall_t[i]
     wl = wall[i]
     n = wp.vec3(wl[0], wl[1], wl[2])
-    ct = (t[1] * wp.identity(n=3, dtype=float) + (t[0] - t[1]) * wp.outer(n, n)) * c
+    ct = wall_matrix(t, n) * c
     k = (ct - ct * inv_m[i] * ct) * (mass[w] / dt)
     r = x[i] - cols.com[wc]
     s = skew(r)
