@@ -2,8 +2,13 @@
 
 The vector env runs in ``"same_step"`` autoreset mode; SB3's conventions follow from it: the
 observation returned for a finished world is its next episode's first one, the last one is in
-``infos[k]["terminal_observation"]``, and ``infos[k]["TimeLimit.truncated"]`` marks
-truncations (step limit or diverged simulation) so value bootstrapping stays correct.
+``infos[k]["terminal_observation"]``, and ``infos[k]["TimeLimit.truncated"]`` marks the
+episodes whose value SB3 should bootstrap: a diverged simulation only. The step limit is part
+of the task the learner is given (the observation carries no clock, and the reward settles the
+episode there), so the adapter reports it as a terminal state: bootstrapping ``γ V(s′)`` at
+the limit would pay a policy that never finishes the value of a state that could still
+succeed, and a warm-started LSTM learned exactly that (episodes stretched to the limit).
+The vector env itself still reports ``truncated`` at the limit, as Gymnasium defines it.
 
 ``indices``: ``env_method("reset", indices=…)`` resets only those worlds (through the vector
 env's ``reset_mask``) and returns each one's ``(obs, info)``; ``get_attr`` and
@@ -78,7 +83,7 @@ class SB3PourVecEnv(VecEnv):
             }
             if done[k]:
                 d["terminal_observation"] = info["final_obs"][k]
-                d["TimeLimit.truncated"] = bool(trunc[k] and not term[k])
+                d["TimeLimit.truncated"] = bool(d["sim_diverged"])
             infos.append(d)
         return obs, rew.astype(np.float32), done, infos
 

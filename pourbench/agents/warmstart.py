@@ -38,11 +38,13 @@ class Demonstrations:
     starts: np.ndarray  # (T, n) bool, obs[t, k] is its episode's first
     returns: np.ndarray  # (T, n) discounted reward from step t to its episode's end
     complete: np.ndarray  # (T, n) bool, step t's episode ended within the rollout
-    errors_g: np.ndarray  # pouring error of each episode that ended normally, g
+    # pouring error of each episode that ended without a collision or a diverged simulation
+    # (at the step limit too), g
+    errors_g: np.ndarray
 
     @property
     def mean_abs_error_g(self) -> float:
-        """The PD's mean pouring error over its finished episodes, g (NaN if none)."""
+        """The PD's mean pouring error over the episodes of ``errors_g``, g (NaN if none)."""
         return float(np.mean(self.errors_g)) if len(self.errors_g) else float("nan")
 
 
@@ -70,7 +72,7 @@ def demonstrate(env: Any, steps: int, gamma: float, progress: bool = False) -> D
         obs_all[t], act_all[t] = obs, a
         obs, rew[t], done[t], infos = env.step(a)
         for k in np.flatnonzero(done[t]):
-            if not infos[k].get("TimeLimit.truncated", False) and not infos[k]["collided"]:
+            if not infos[k]["sim_diverged"] and not infos[k]["collided"]:
                 errors.append(float(infos[k]["error_g"]))
         pd.reset(done[t])
         if t + 1 < steps:
