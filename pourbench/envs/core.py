@@ -53,8 +53,8 @@ from pourbench.fluids import (
     liquid_names,
     liquid_profile,
 )
+from pourbench.fluids.accounting import LiquidCounter
 from pourbench.fluids.coupling import ReactionLog
-from pourbench.fluids.metrics import count_liquid
 from pourbench.fluids.solver import container_lattice
 from pourbench.scene import TABLE_HALF_XY, TABLE_HEIGHT, body_clearance, build_pour_scene
 
@@ -67,7 +67,7 @@ def liquid_account(
     initial_g: np.ndarray,
     target_g: np.ndarray,
 ) -> dict[str, np.ndarray]:
-    """Per-world grams from :func:`pourbench.fluids.metrics.count_liquid`'s particle counts
+    """Per-world grams from :class:`pourbench.fluids.accounting.LiquidCounter`'s particle counts
     (``inside``: (n, 2), the pouring then the receiving container): poured, spilled,
     remaining, in flight, the episode's initial and target grams and |poured − target|."""
     poured = inside[:, 1] * particle_g
@@ -348,6 +348,7 @@ class PourBatch:
         # per-candidate geometry (index c of self.candidates)
         boxes = [get_container(c) for c in self.candidates]
         self._shapes = [b.shape for b in boxes] + [self.receiving.shape]
+        self._counter = LiquidCounter(self.solver, self._shapes, scfg.spacing)
         self._diameter = np.array([b.diameter for b in boxes])
         self._depth = np.array([b.depth for b in boxes])
         self._rim = np.array([b.rim_height for b in boxes])
@@ -679,15 +680,11 @@ class PourBatch:
 
     def measure(self) -> dict[str, np.ndarray]:
         """Ground-truth liquid accounting and task numbers per world (grams)."""
-        x = self.solver.positions()  # one read of the particles
-        owner = self.solver.worlds()
         poses = np.empty((self.n, 2, 7))
         poses[:, 0] = self.pouring_poses()
         poses[:, 1] = self.recv_pose
         shape_index = np.stack([self.cidx, np.full(self.n, len(self._shapes) - 1)], 1)
-        counts = count_liquid(
-            x, owner, self.n, poses, shape_index, self._shapes, self.solver_config.spacing
-        )
+        counts = self._counter.count(np.arange(self.n), poses, shape_index)
         out = liquid_account(*counts, self.particle_g, self.initial_g, self.target_g)
         out["measured_g"] = self.filter.value_g.copy()
         out["liquid"] = self.liquid_names.copy()

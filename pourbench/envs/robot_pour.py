@@ -93,7 +93,7 @@ from pourbench.errors import (
     check_positive,
 )
 from pourbench.fluids import MujocoCoupling, PBFSolver
-from pourbench.fluids.metrics import count_liquid
+from pourbench.fluids.accounting import LiquidCounter
 from pourbench.fluids.solver import container_lattice
 from pourbench.planners import (
     MinkController,
@@ -338,7 +338,7 @@ class RobotPourEnv(gym.Env):
             1, cfg.sensor_rate_hz, cfg.sensor_cutoff_hz, noise_n=cfg.sensor_noise_n
         )
         self.history = ErrorHistory(1, cfg.reward.window)
-        self._shapes = [self.pour.shape, self.recv.shape]
+        self._counter = LiquidCounter(self.solver, [self.pour.shape, self.recv.shape], scfg.spacing)
         self._half = np.array([max(self.recv.mouth_diameter / 2 - self.pour.diameter / 2, 0.01)])
         self.rng: np.random.Generator | None = None
         self.planner_time_s = 0.0  # wall time of the last planner call, s
@@ -719,10 +719,7 @@ class RobotPourEnv(gym.Env):
             b = m.body(name).id
             poses[0, k, :3] = d.xpos[b]
             poses[0, k, 3:6], poses[0, k, 6] = d.xquat[b][1:], d.xquat[b][0]
-        counts = count_liquid(
-            self.solver.positions(), self.solver.worlds(), 1, poses, np.array([[0, 1]]),
-            self._shapes, self.solver_config.spacing,
-        )  # fmt: skip
+        counts = self._counter.count(np.array([0]), poses, np.array([[0, 1]]))
         out = liquid_account(*counts, self.particle_g, [self.initial_g], self.target_g)
         out["measured_g"] = self.filter.value_g.copy()
         out["tilt"] = self.tilt.copy()

@@ -1662,3 +1662,43 @@ def copy_state(
     i = wp.tid()
     x_dst[i] = x_src[i]
     v_dst[i] = v_src[i]
+
+
+@wp.kernel
+def flag_diverged(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    from_start: int,
+    inv_dt: float,
+    world: wp.array(dtype=wp.int32),
+    up: wp.vec3,
+    g: float,
+    top: wp.array(dtype=float),
+    bottom: wp.array(dtype=float),
+    wall_speed: wp.array(dtype=float),
+    runaway: float,
+    rest_energy: float,
+    max_speed: float,
+    flags: wp.array(dtype=wp.int32),
+):
+    """Flag the world of a particle that is not finite, 100 m out, faster than ``max_speed``
+    or carrying more energy per unit mass than its scene can give
+    (:meth:`~pourbench.fluids.solver.PBFSolver.diverged`). ``v`` holds the velocities, or
+    with ``from_start`` the step's start positions (velocity = (x − v) · inv_dt)."""
+    i = wp.tid()
+    p = x[i]
+    u = v[i]
+    if from_start != 0:
+        u = (p - u) * inv_dt
+    w = world[i]
+    finite = bool(True)
+    for k in range(3):
+        if not wp.isfinite(p[k]) or not wp.isfinite(u[k]):
+            finite = False
+    speed2 = wp.dot(u, u)
+    scene = g * (top[w] - bottom[w]) + 2.0 * wall_speed[w] * wall_speed[w]
+    energy = 0.5 * speed2 + g * (wp.dot(p, up) - bottom[w])
+    far = wp.max(wp.max(wp.abs(p[0]), wp.abs(p[1])), wp.abs(p[2])) > 100.0
+    fast = speed2 > max_speed * max_speed
+    if not finite or fast or energy > runaway * scene + rest_energy or far:
+        wp.atomic_max(flags, w, 1)

@@ -1361,6 +1361,18 @@ class PBFSolver:
         """World index of every particle."""
         return self._world.copy()
 
+    def particle_arrays(self) -> tuple[wp.array, wp.array]:
+        """Every particle's position (vec3, m) and world (int32) as arrays on the solver's
+        device, for kernels that read the current state: the solver's own arrays, or copies
+        of the host state while edits wait for the next step's upload."""
+        if self._dirty:
+            dev = self.device
+            return (
+                wp.array(self._x, dtype=wp.vec3, device=dev),
+                wp.array(self._world, dtype=wp.int32, device=dev),
+            )
+        return self.x, self.world
+
     def world_slice(self, world: int) -> slice:
         """Index range of ``world``'s particles in :meth:`positions`."""
         self._check_world(world)
@@ -1479,30 +1491,31 @@ class PBFSolver:
         its speed), all since the world's particles were added and tracked every step;
         v_rest, half a spacing per step, is the scale of the solver's own rearrangements.
         """
-        cfg = self.config
-        out = np.zeros(self.num_worlds, bool)
+        cfg, dev = self.config, self.device
         if self.num_particles == 0:
-            return out
-        x, v, w = self.positions(), self.velocities(), self._world
-        g = float(np.linalg.norm(cfg.gravity))
-        if self._dirty:
-            top, bottom = self._top, self._bottom
+            return np.zeros(self.num_worlds, bool)
+        f = lambda a: wp.array(a, dtype=float, device=dev)  # noqa: E731
+        x, world = self.particle_arrays()
+        if self._dirty:  # host state: the velocities as given
+            v, from_start = wp.array(self._v, dtype=wp.vec3, device=dev), 0
+            top, bottom = f(self._top), f(self._bottom)
         else:
-            top, bottom = self.top.numpy(), self.bottom.numpy()
-        finite = np.isfinite(x).all(1) & np.isfinite(v).all(1)
-        speed2 = (v.astype(float) ** 2).sum(1)
-        with np.errstate(invalid="ignore"):
-            energy = 0.5 * speed2 + g * (x @ self._up - bottom[w])
-            scene = g * (top - bottom) + 2.0 * self._wall_speed**2
-            v_rest = 0.5 * cfg.spacing / cfg.dt
-            bad = (
-                ~finite
-                | (speed2 > cfg.max_speed**2)
-                | (energy > RUNAWAY_ENERGY * scene[w] + 0.5 * v_rest**2)
-                | (np.abs(x).max(1) > 100.0)
-            )
-        out[np.unique(w[bad])] = True
-        return out
+            top, bottom = self.top, self.bottom
+            v, from_start = (self.x_prev, 1) if self._moved else (self.v, 0)
+        flags = wp.zeros(self.num_worlds, dtype=wp.int32, device=dev)
+        g = float(np.linalg.norm(cfg.gravity))
+        v_rest = 0.5 * cfg.spacing / cfg.dt
+        wp.launch(
+            K.flag_diverged,
+            len(x),
+            inputs=[
+                *(x, v, from_start, 1.0 / cfg.dt, world, wp.vec3(*self._up), g),
+                *(top, bottom, f(self._wall_speed), RUNAWAY_ENERGY, 0.5 * v_rest**2),
+                *(cfg.max_speed, flags),
+            ],
+            device=dev,
+        )
+        return flags.numpy() > 0
 
 
 def _lattice(cfg: SolverConfig) -> np.ndarray:
