@@ -455,6 +455,10 @@ class PBFSolver:
         self._top = np.full(self.num_worlds, -np.inf, np.float32)
         self._bottom = np.full(self.num_worlds, np.inf, np.float32)
         self._wall_speed = np.zeros(self.num_worlds)
+        self._diverged_args = (  # the wall speeds going down and the flags coming back
+            wp.zeros(self.num_worlds, dtype=float, device=self.device),
+            wp.zeros(self.num_worlds, dtype=wp.int32, device=self.device),
+        )
         self._uploaded_poses: np.ndarray | None = None
         # the colliders' poses and torque centres, one row per collider (index order); each
         # Collider's pose/com is a view of its row (see _add_rows)
@@ -1502,7 +1506,9 @@ class PBFSolver:
         else:
             top, bottom = self.top, self.bottom
             v, from_start = (self.x_prev, 1) if self._moved else (self.v, 0)
-        flags = wp.zeros(self.num_worlds, dtype=wp.int32, device=dev)
+        wall_speed, flags = self._diverged_args
+        wall_speed.assign(self._wall_speed.astype(np.float32))
+        flags.zero_()
         g = float(np.linalg.norm(cfg.gravity))
         v_rest = 0.5 * cfg.spacing / cfg.dt
         wp.launch(
@@ -1510,7 +1516,7 @@ class PBFSolver:
             len(x),
             inputs=[
                 *(x, v, from_start, 1.0 / cfg.dt, world, wp.vec3(*self._up), g),
-                *(top, bottom, f(self._wall_speed), RUNAWAY_ENERGY, 0.5 * v_rest**2),
+                *(top, bottom, wall_speed, RUNAWAY_ENERGY, 0.5 * v_rest**2),
                 *(cfg.max_speed, flags),
             ],
             device=dev,
