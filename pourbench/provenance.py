@@ -49,11 +49,22 @@ def machine() -> str:
     )
 
 
+def load() -> str:
+    """The machine's load averages over the last 1, 5 and 15 minutes beside its core count:
+    above the core count, other processes shared the cores a timing ran on."""
+    try:
+        one, five, fifteen = os.getloadavg()
+    except OSError:  # not every platform reports it
+        return "unknown"
+    return f"{one:.2f} / {five:.2f} / {fifteen:.2f} (1 / 5 / 15 min) on {os.cpu_count()} cores"
+
+
 def provenance() -> dict[str, str]:
-    """Command, git SHA, machine and UTC date of this run."""
+    """Command, git SHA, machine, its load and UTC date of this run."""
     return {
         "command": "pourbench " + " ".join(sys.argv[1:]),
         "git_sha": git_sha(),
         "machine": machine(),
+        "load": load(),
         "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"),
     }

@@ -211,6 +211,20 @@ def test_a_long_run_stamps_the_sha_it_started_at(tmp_path) -> None:
     assert json.loads(json_path.read_text())["git_sha"] == git_sha()
 
 
+def test_a_report_records_the_load_it_was_timed_under(tmp_path, monkeypatch) -> None:
+    """The machine's load averages at writing go into both files beside the core count, so a
+    table timed while other processes shared the cores says so."""
+    import os
+
+    from pourbench.bench._report import write_report
+
+    monkeypatch.setattr(os, "getloadavg", lambda: (2.5, 2.0, 1.25))
+    json_path, md_path = write_report("s", [], out=tmp_path, title="t", body_md="b")
+    want = f"2.50 / 2.00 / 1.25 (1 / 5 / 15 min) on {os.cpu_count()} cores"
+    assert json.loads(json_path.read_text())["load"] == want
+    assert f"- load at writing: {want}" in md_path.read_text()
+
+
 def test_report_json_is_strict_with_numpy_values_and_nan_as_null(tmp_path) -> None:
     """NaN is written as null (a missing value, as rows write None), ±inf as "inf" / "-inf"
     (no obstacle: an infinite clearance, not a missing one); NumPy values as plain numbers."""

@@ -157,6 +157,7 @@ def write_report(
         f"- command: `{prov['command']}`",
         f"- git SHA: `{prov['git_sha']}`",
         f"- machine: {prov['machine']}",
+        f"- load at writing: {prov['load']}",
         *([f"- accelerator: {gpu}"] if gpu else []),
         f"- date: {prov['date']}",
         "",
