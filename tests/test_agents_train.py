@@ -93,7 +93,10 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
     assert main([*run, "--budget-steps", "256"]) == 0
     state = json.loads((out / "state.json").read_text())
     assert state["timesteps"] == 256 and state["sessions"] == 1
-    assert json.loads((out / "result.json").read_text())["timesteps"] == 256
+    result = json.loads((out / "result.json").read_text())
+    assert result["timesteps"] == 256
+    # the PD baseline and the random policy on the same episodes as the policy
+    assert result["pd_mean_abs_error_g"] < result["random_mean_abs_error_g"]
     model = (out / "model.zip").read_bytes()
     icm = torch.load(out / "icm.pt", weights_only=True)["icm"]
     assert (out / "training.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -231,12 +234,15 @@ def test_lstm_and_sac_runs_save_models_that_load_policy_reads(tmp_path, flags, a
 
     out = tmp_path / algorithm
     argv = [*SMALL, "--n-steps", "64", "--budget-steps", "128", "--eval-episodes", "1"]
-    assert main([*argv, *flags, "--eval-every-steps", "0", "--out", str(out)]) == 0
+    every = "128" if "--warm-start-steps" in flags else "0"
+    assert main([*argv, *flags, "--eval-every-steps", every, "--out", str(out)]) == 0
     assert algorithm_of(out / "model.zip") == algorithm
     state = json.loads((out / "state.json").read_text())
     if "--warm-start-steps" in flags:  # 64 steps of 2 worlds' PD demonstrations, cloned
         warm = state["warm_start"]
         assert warm["steps"] == 64 and warm["seconds"] > 0 and warm["std"] >= 0.1
+        # the clone evaluated on the episodes of every later evaluation, before PPO trains
+        assert warm["eval_mean_abs_error_g"] >= 0 and 0 <= warm["eval_success_rate"] <= 1
         assert json.loads((out / "result.json").read_text())["warm_start"] == warm
     else:
         assert "warm_start" not in state

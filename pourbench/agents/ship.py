@@ -73,6 +73,7 @@ def ship(run_dir: str | Path, name: str, policy_dir: str | Path = POLICY_DIR) ->
             "mean_abs_error_g": result["mean_abs_error_g"],
             "summary": result["policy"],
             "random_mean_abs_error_g": result["random_mean_abs_error_g"],
+            "pd_mean_abs_error_g": result.get("pd_mean_abs_error_g"),
         },
     }
     partial.replace(zip_path)

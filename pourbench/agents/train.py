@@ -366,8 +366,18 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()
+        eval_kw = {"liquid": args.liquid, "target_g": args.target_g or None, "seed": 1000}
+
+        def evaluate_now() -> Any:
+            return evaluate(model_policy(model), args.eval_episodes, progress=True, **eval_kw)
+
         if args.warm_start_steps and not args.resume:
             state["warm_start"] = _warm_start(model, base, args)
+            if args.eval_every_steps:  # the clone, on the episodes every evaluation uses
+                cloned = evaluate_now()
+                state["warm_start"]["eval_mean_abs_error_g"] = cloned.mean_abs_error_g
+                state["warm_start"]["eval_success_rate"] = cloned.success_rate
+                print(f"evaluation of the clone: {cloned.summary()}")
             if left_s is not None:
                 left_s -= time.perf_counter() - t_start
 
@@ -397,11 +407,6 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
                 return steps / args.budget_steps
             return spent_s() / float(args.budget_s)  # type: ignore[arg-type]
 
-        eval_kw = {"liquid": args.liquid, "target_g": args.target_g or None, "seed": 1000}
-
-        def evaluate_now() -> Any:
-            return evaluate(model_policy(model), args.eval_episodes, progress=True, **eval_kw)
-
         callbacks: list[Any] = [
             PourStatsCallback(icm),
             BudgetCallback(left_s, args.checkpoint_s, checkpoint),
@@ -426,6 +431,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
     print(f"wrote {plot}")
     final = evaluate_now()
     rnd = evaluate("random", args.eval_episodes, progress=True, **eval_kw)
+    pd = evaluate("pd", args.eval_episodes, progress=True, **eval_kw)
     result = {
         "args": asdict(args),
         "train_s": train_s,
@@ -433,8 +439,10 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         "timesteps": int(model.num_timesteps),
         "mean_abs_error_g": final.mean_abs_error_g,
         "random_mean_abs_error_g": rnd.mean_abs_error_g,
+        "pd_mean_abs_error_g": pd.mean_abs_error_g,
         "policy": final.summary(),
         "random": rnd.summary(),
+        "pd": pd.summary(),
         "plot": str(plot),
         "warm_start": state.get("warm_start"),
         "provenance": stamp,
