@@ -163,6 +163,8 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
         ({"n_steps": 1, "num_envs": 1}, r"n_steps \* num_envs .* must be >= 2"),
         ({"warm_start_steps": -1}, "warm_start_steps must be >= 0, got -1"),
         ({"clone_epochs": 0}, "clone_epochs must be >= 1, got 0"),
+        ({"dagger_rounds": -1}, "dagger_rounds must be >= 0, got -1"),
+        ({"dagger_rounds": 2}, "dagger_rounds=2 relabels .* needs warm_start_steps > 0"),
         ({"learning_rate": 0.0}, "learning_rate must be > 0"),
         ({"target_kl": -0.01}, "target_kl must be >= 0"),
         ({"final_error_per_g": float("nan")}, "final_error_per_g must be finite"),
@@ -222,7 +224,10 @@ def _args(argv: list[str]) -> argparse.Namespace:
 @pytest.mark.parametrize(
     "flags, algorithm",
     [
-        ([*LSTM, "--warm-start-steps", "64", "--clone-epochs", "2"], "recurrent_ppo"),
+        (
+            [*LSTM, "--warm-start-steps", "64", "--clone-epochs", "2", "--dagger-rounds", "1"],
+            "recurrent_ppo",
+        ),
         (["--algorithm", "sac", "--no-icm", "--no-curriculum"], "sac"),
     ],
 )
@@ -243,6 +248,7 @@ def test_lstm_and_sac_runs_save_models_that_load_policy_reads(tmp_path, flags, a
         assert warm["steps"] == 64 and warm["seconds"] > 0 and warm["std"] >= 0.1
         # the clone evaluated on the episodes of every later evaluation, before PPO trains
         assert warm["eval_mean_abs_error_g"] >= 0 and 0 <= warm["eval_success_rate"] <= 1
+        assert len(warm["dagger_mean_abs_error_g"]) == 1  # one DAgger round's rollout
         assert json.loads((out / "result.json").read_text())["warm_start"] == warm
     else:
         assert "warm_start" not in state

@@ -64,3 +64,31 @@ def test_cloning_fits_the_pd_actions_and_returns(demos, algorithm) -> None:
     assert float(std.mean()) == pytest.approx(fitted["std"], rel=1e-6)
     assert bool((std >= 0.1 - 1e-6).all()) and float(std.max()) < 0.5
     assert fitted["std"] < untrained["std"]
+
+
+def test_a_dagger_round_follows_the_learner_and_keeps_the_pd_labels(demos) -> None:
+    """With a learner the learner acts and the PD only labels: the labels are what the PD
+    gives when fed the recorded observations, the visited states are not the PD's own, and
+    rollouts of one length join side by side into one set of demonstrations."""
+    import torch
+
+    from pourbench.agents.models import make_model
+    from pourbench.agents.pd import PDPourer
+    from pourbench.agents.warmstart import demonstrate, join
+
+    d, env = demos
+    torch.manual_seed(0)
+    learner = make_model("ppo", env, n_steps=64, verbose=0)  # untrained: far from the PD
+    steps = d.starts.shape[0]
+    got = demonstrate(env, steps, GAMMA, learner=learner)
+    pd = PDPourer(env.num_envs)
+    for t in range(steps):
+        pd.reset(got.starts[t])
+        np.testing.assert_array_equal(pd.act(got.obs[t]), got.actions[t])
+    taken, _ = learner.predict(got.obs[0], deterministic=True)
+    assert not np.allclose(taken, got.actions[0])  # the learner's action, not the label
+    assert not np.allclose(got.obs[5:], d.obs[5:])  # so the states drift from the PD's
+    both = join(d, got)
+    assert both.obs.shape == (steps, 2 * env.num_envs, 12)
+    np.testing.assert_array_equal(both.actions[:, env.num_envs :], got.actions)
+    assert len(both.errors_g) == len(d.errors_g) + len(got.errors_g)

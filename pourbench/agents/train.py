@@ -92,6 +92,10 @@ class TrainArgs:
             trains (pourbench.agents.warmstart; 0: none, the thesis' start from scratch).
             They and the cloning count in a time budget, not in the step budget.
         clone_epochs: passes of the cloning over the demonstrations.
+        dagger_rounds: after the cloning, rounds in which the clone acts for
+            warm_start_steps steps, the PD labels the states it visits, and the clone is
+            fitted again to everything labelled so far, with as many gradient steps as the
+            first fit (DAgger; 0: cloning alone). Needs warm_start_steps.
         learning_rate: Adam's step size.
         target_kl: PPO and RecurrentPPO stop an update's epochs once the policy has moved
             this far (KL divergence) from the one that collected the rollout (0: no limit);
@@ -125,6 +129,7 @@ class TrainArgs:
     resume: bool = False
     warm_start_steps: int = 0
     clone_epochs: int = 30
+    dagger_rounds: int = 0
     learning_rate: float = 3e-4
     target_kl: float = 0.0
     final_error_per_g: float = 0.0
@@ -170,7 +175,7 @@ class TrainArgs:
             check_positive(name, getattr(self, name))
         for name in ("num_envs", "n_steps", "seq_len", "batch_size", "eval_episodes", "threads"):
             check_int(name, getattr(self, name), minimum=1)
-        for name in ("seed", "workers", "eval_every_steps", "warm_start_steps"):
+        for name in ("seed", "workers", "eval_every_steps", "warm_start_steps", "dagger_rounds"):
             check_int(name, getattr(self, name), minimum=0)
         check_int("clone_epochs", self.clone_epochs, minimum=1)
         check_positive("learning_rate", self.learning_rate)
@@ -184,6 +189,11 @@ class TrainArgs:
             raise InvalidParameterError(
                 f"warm_start_steps={self.warm_start_steps!r}: the PD warm start clones into "
                 "PPO or RecurrentPPO, not SAC"
+            )
+        if self.dagger_rounds and not self.warm_start_steps:
+            raise InvalidParameterError(
+                f"dagger_rounds={self.dagger_rounds!r} relabels the clone's own rollouts: it "
+                "needs warm_start_steps > 0"
             )
         if self.workers > self.num_envs:
             raise InvalidParameterError(
@@ -260,12 +270,13 @@ def _read_state(out: Path, args: TrainArgs) -> dict[str, Any]:
     return state
 
 
-def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, float]:
+def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, Any]:
     """Clone the PD baseline into ``model`` (:mod:`pourbench.agents.warmstart`) from
-    ``args.warm_start_steps`` environment steps of ``env``; what it measured (logged under
-    ``clone/`` and kept in ``state.json``)."""
+    ``args.warm_start_steps`` environment steps of ``env``, then ``args.dagger_rounds``
+    DAgger rounds; what it measured (logged under ``clone/`` and kept in ``state.json``;
+    ``dagger_mean_abs_error_g``: the clone's own error in each round's rollout)."""
     from pourbench.agents.models import GAMMA
-    from pourbench.agents.warmstart import clone, demonstrate
+    from pourbench.agents.warmstart import clone, demonstrate, join
 
     t0 = time.perf_counter()
     steps = -(-args.warm_start_steps // args.num_envs)
@@ -276,15 +287,30 @@ def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, float]:
         f"{demos.mean_abs_error_g:.2f} g; cloning for {args.clone_epochs} epochs"
     )
     stats = clone(model, demos, args.clone_epochs, seed=args.seed, progress=True)
-    out = {
+    out: dict[str, Any] = {
         "steps": steps * args.num_envs,
         "episodes": len(demos.errors_g),
         "pd_mean_abs_error_g": demos.mean_abs_error_g,
         **stats,
-        "seconds": time.perf_counter() - t0,
     }
+    rounds: list[float] = []
+    for k in range(1, args.dagger_rounds + 1):
+        new = demonstrate(env, steps, GAMMA, progress=True, learner=model)
+        rounds.append(new.mean_abs_error_g)
+        demos = join(demos, new)
+        print(
+            f"DAgger round {k}: the clone poured {len(new.errors_g)} episodes, mean error "
+            f"{new.mean_abs_error_g:.2f} g; fitting to {k + 1} rollouts"
+        )
+        # as many gradient steps as the first fit, over all the labelled rollouts
+        epochs = max(1, round(args.clone_epochs / (k + 1)))
+        out.update(clone(model, demos, epochs, seed=args.seed + k, progress=True))
+    if rounds:
+        out["dagger_mean_abs_error_g"] = rounds
+    out["seconds"] = time.perf_counter() - t0
     for key, value in out.items():
-        model.logger.record(f"clone/{key}", value)
+        if not isinstance(value, list):
+            model.logger.record(f"clone/{key}", value)
     model.logger.dump(0)
     return out
 

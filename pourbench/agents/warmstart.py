@@ -48,10 +48,17 @@ class Demonstrations:
         return float(np.mean(self.errors_g)) if len(self.errors_g) else float("nan")
 
 
-def demonstrate(env: Any, steps: int, gamma: float, progress: bool = False) -> Demonstrations:
-    """Reset the SB3 VecEnv ``env`` (a :class:`~pourbench.agents.sb3.SB3PourVecEnv`) and act
-    in it with the PD baseline for ``steps`` vector steps; ``gamma`` discounts the returns;
-    ``progress`` shows a progress bar."""
+def demonstrate(
+    env: Any, steps: int, gamma: float, progress: bool = False, learner: Any = None
+) -> Demonstrations:
+    """Reset the SB3 VecEnv ``env`` (a :class:`~pourbench.agents.sb3.SB3PourVecEnv`) and run
+    ``steps`` vector steps labelled with the PD baseline's actions; ``gamma`` discounts the
+    returns; ``progress`` shows a progress bar.
+
+    Without ``learner`` the PD acts. With ``learner`` (an SB3 model) the learner's
+    deterministic action is taken and the PD, fed the same observations, only labels them:
+    a DAgger round (Ross et al. 2011), which shows the PD the states the clone drifts into.
+    ``errors_g`` are then the learner's."""
     from tqdm import tqdm
 
     from pourbench.agents.pd import PDPourer
@@ -67,9 +74,15 @@ def demonstrate(env: Any, steps: int, gamma: float, progress: bool = False) -> D
     errors: list[float] = []
     obs = env.reset()
     starts[0] = True
-    for t in tqdm(range(steps), desc="PD demonstrations", unit="step", disable=not progress):
+    state = None
+    desc = "PD demonstrations" if learner is None else "DAgger: the clone acts, the PD labels"
+    for t in tqdm(range(steps), desc=desc, unit="step", disable=not progress):
         a = pd.act(obs)
         obs_all[t], act_all[t] = obs, a
+        if learner is not None:
+            a, state = learner.predict(
+                obs, state=state, episode_start=starts[t], deterministic=True
+            )
         obs, rew[t], done[t], infos = env.step(a)
         for k in np.flatnonzero(done[t]):
             if not infos[k]["sim_diverged"] and not infos[k]["collided"]:
@@ -85,6 +98,16 @@ def demonstrate(env: Any, steps: int, gamma: float, progress: bool = False) -> D
         ended = done[t] | ended
         returns[t], complete[t] = after, ended
     return Demonstrations(obs_all, act_all, starts, returns, complete, np.array(errors))
+
+
+def join(*demos: Demonstrations) -> Demonstrations:
+    """Demonstrations of the same length side by side, as if from one env of all their
+    worlds (DAgger's aggregate)."""
+    cat = lambda name: np.concatenate([getattr(d, name) for d in demos], axis=1)  # noqa: E731
+    return Demonstrations(
+        *(cat(f) for f in ("obs", "actions", "starts", "returns", "complete")),
+        np.concatenate([d.errors_g for d in demos]),
+    )
 
 
 def clone(
