@@ -358,10 +358,7 @@ def test_set_lesson_single_and_vector() -> None:
 
 
 def _headless(code: str, **env: str) -> subprocess.CompletedProcess:
-    """Run ``code`` in a fresh interpreter without a display, MUJOCO_GL as ``env`` says.
-
-    The limit only stops a hang: a vector env's worker is a fresh interpreter too, and on two
-    loaded cores the pair took over two minutes to import, compile and render."""
+    """Run ``code`` in a fresh interpreter without a display, MUJOCO_GL as ``env`` says."""
     base = {
         k: v
         for k, v in os.environ.items()
@@ -369,7 +366,7 @@ def _headless(code: str, **env: str) -> subprocess.CompletedProcess:
     }
     return subprocess.run(
         [sys.executable, "-c", code], env={**base, **env}, capture_output=True, text=True,
-        timeout=600,
+        timeout=120,
     )  # fmt: skip
 
 
