@@ -92,3 +92,40 @@ def test_a_dagger_round_follows_the_learner_and_keeps_the_pd_labels(demos) -> No
     assert both.obs.shape == (steps, 2 * env.num_envs, 12)
     np.testing.assert_array_equal(both.actions[:, env.num_envs :], got.actions)
     assert len(both.errors_g) == len(d.errors_g) + len(got.errors_g)
+
+
+def test_the_lstm_is_fitted_on_each_episode_as_it_meets_it(demos) -> None:
+    """In a padded batch of episodes the recurrent policy's mean action at each real step is
+    the action it takes when it plays that episode from its start (SB3's predict), so the
+    fit sees what the acting policy sees; the padding reaches no real step."""
+    import torch
+    from sb3_contrib.common.recurrent.type_aliases import RNNStates
+
+    from pourbench.agents.models import make_model
+    from pourbench.agents.warmstart import _mean_and_value, episode_batch
+
+    d, env = demos
+    torch.manual_seed(0)
+    model = make_model("recurrent_ppo", env, n_steps=64, verbose=0)
+    policy = model.policy
+    bounds = [[*np.flatnonzero(d.starts[:, k]).tolist(), len(d.starts)] for k in range(2)]
+    short = (0, bounds[0][0], bounds[0][1])  # world 0's first episode
+    long = (1, bounds[1][-2], bounds[1][-1])  # world 1's last, possibly cut by the rollout
+    items = sorted([short, long], key=lambda s: s[1] - s[2])  # the longer one first
+    obs, _, _, _, valid, start = episode_batch(d, items)
+    shape = (policy.lstm_actor.num_layers, 2, policy.lstm_actor.hidden_size)
+    zero = (torch.zeros(shape), torch.zeros(shape))
+    with torch.no_grad():
+        mean, _ = _mean_and_value(policy, obs, RNNStates(zero, zero), start)
+    length = len(valid) // 2
+    for row, (k, a, b) in enumerate(items):
+        state, acted = None, []
+        for t in range(a, b):
+            act, state = model.predict(
+                d.obs[t, k][None], state=state, episode_start=np.array([t == a]),
+                deterministic=True,
+            )  # fmt: skip
+            acted.append(act[0])
+        got = mean[row * length : row * length + (b - a)].clamp(-1, 1).numpy()
+        np.testing.assert_allclose(got, np.array(acted), atol=1e-5)
+        assert valid[row * length : (row + 1) * length].sum() == b - a

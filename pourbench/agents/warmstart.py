@@ -15,18 +15,24 @@ Training then goes on as without it.
 Written by hand: the ``imitation`` library's behaviour cloning covers SB3's feed-forward
 policies but not sb3-contrib's recurrent ones. Here both go through the policy's own
 feature extractor, LSTMs and heads (the steps of its ``evaluate_actions``, without the
-distribution); the LSTM runs over each world's whole demonstration from a zero state, reset
-at its episode starts, as it does when it acts.
+distribution); the LSTM runs over each demonstrated episode from a zero state, as it does
+when it acts, a few episodes to a gradient step.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from pourbench.errors import check_int
+
+EPISODES_PER_BATCH = 4
+"""Episodes in one gradient step of a recurrent policy's fit. Whole 500-step rollouts, 8
+worlds a step, left an LSTM's 30 epochs over 16 worlds at 60 steps, too few to fit the PD
+(`docs/training.md`); episodes, 4 a step, give the same data about 8 times the steps."""
 
 
 @dataclass(frozen=True)
@@ -140,38 +146,41 @@ def clone(
     recurrent = isinstance(policy, RecurrentActorCriticPolicy)
     T, n = demos.starts.shape
 
-    def as_tensor(a: np.ndarray, worlds: np.ndarray | None = None) -> torch.Tensor:
-        # recurrent: the chosen worlds' sequences one after another (sb3-contrib's layout)
-        if worlds is not None:
-            a = np.swapaxes(a, 0, 1)[worlds]
-        return torch.as_tensor(a.reshape(-1, *a.shape[2:]), dtype=torch.float32)
-
     if recurrent:
-        per = min(n, 8)
-        batches = [np.sort(b) for b in np.array_split(np.arange(n), max(1, n // per))]
+        # each episode is its own sequence from a zero state, as the policy meets it (a
+        # rollout's first step starts one); EPISODES_PER_BATCH of them, padded, a step
+        segments = [
+            (k, a, b)
+            for k in range(n)
+            for a, b in itertools.pairwise([*np.flatnonzero(demos.starts[:, k]), T])
+        ]
+        units = len(segments)
+        size = EPISODES_PER_BATCH
     else:
-        samples = T * n
-        size = min(256, samples)
+        units = T * n
+        size = min(256, units)
+
     stats: dict[str, float] = {}
     residual, count = torch.zeros(demos.actions.shape[-1], dtype=torch.float64), 0
     bar = tqdm(range(epochs), desc="cloning the PD", unit="epoch", disable=not progress)
     for _ in bar:
-        if recurrent:
-            order = [batches[i] for i in rng.permutation(len(batches))]
-        else:
-            perm = rng.permutation(samples)
-            order = [perm[i : i + size] for i in range(0, samples, size)]
+        perm = rng.permutation(units)
+        order = [perm[i : i + size] for i in range(0, units, size)]
         sums = np.zeros(2)
         residual.zero_()
         count = 0
         for idx in order:
             if recurrent:
-                obs, act = as_tensor(demos.obs, idx), as_tensor(demos.actions, idx)
-                ret, mask = as_tensor(demos.returns, idx), as_tensor(demos.complete, idx)
-                start = as_tensor(demos.starts, idx)
-                shape = (policy.lstm_actor.num_layers, len(idx), policy.lstm_actor.hidden_size)
+                items = [segments[i] for i in idx]
+                obs, act, ret, done, valid, start = episode_batch(demos, items)
+                mask = done * valid
+                shape = (policy.lstm_actor.num_layers, len(items), policy.lstm_actor.hidden_size)
                 zero = (torch.zeros(shape), torch.zeros(shape))
                 mean, values = _mean_and_value(policy, obs, RNNStates(zero, zero), start)
+                keep = valid > 0
+                mean, act, values, ret, mask = (
+                    t[keep] for t in (mean, act, values.flatten(), ret, mask)
+                )
             else:
                 flat = [a.reshape(-1, *a.shape[2:])[idx] for a in (demos.obs, demos.actions)]
                 obs, act = (torch.as_tensor(a, dtype=torch.float32) for a in flat)
@@ -198,6 +207,31 @@ def clone(
         policy.log_std.copy_(std.log().to(policy.log_std.dtype))
     policy.set_training_mode(False)
     return {**stats, "std": float(std.mean())}
+
+
+def episode_batch(demos: Demonstrations, items: list[tuple[int, int, int]]) -> tuple:
+    """The episodes ``items`` (world, first step, end step) of ``demos`` one after another,
+    each padded with zeros to the longest (sb3-contrib's sequence layout), as float tensors:
+    observations, actions, returns, completeness, validity (0 on padding) and episode
+    starts (1 at each episode's first step)."""
+    import torch
+
+    length = max(b - a for _, a, b in items)
+
+    def padded(src: np.ndarray) -> torch.Tensor:
+        out = np.zeros((len(items), length, *src.shape[2:]), np.float32)
+        for row, (k, a, b) in enumerate(items):
+            out[row, : b - a] = src[a:b, k]
+        return torch.as_tensor(out.reshape(len(items) * length, *src.shape[2:]))
+
+    valid = np.zeros((len(items), length), np.float32)
+    for row, (_, a, b) in enumerate(items):
+        valid[row, : b - a] = 1.0
+    start = np.zeros((len(items), length), np.float32)
+    start[:, 0] = 1.0
+    fields = (demos.obs, demos.actions, demos.returns, demos.complete)
+    flat = (torch.as_tensor(a.reshape(-1)) for a in (valid, start))
+    return (*(padded(f) for f in fields), *flat)
 
 
 def _mean_and_value(policy: Any, obs: Any, states: Any = None, starts: Any = None) -> tuple:
