@@ -14,7 +14,8 @@ from pourbench.errors import InvalidParameterError
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory):
     """A RecurrentPPO run after one update (so its optimiser holds moments), with the
-    state.json and result.json a finished ``pourbench train`` leaves."""
+    state.json and result.json a finished ``pourbench train`` leaves, and the model before
+    the update kept as its best-evaluated one."""
     from pourbench.agents.models import make_model
     from pourbench.agents.sb3 import SB3PourVecEnv
 
@@ -22,6 +23,7 @@ def finished_run(tmp_path_factory):
     env = SB3PourVecEnv(1, seed=0, workers=1, liquid="water")
     try:
         model = make_model("recurrent_ppo", env, n_steps=8, batch_size=8, verbose=0)
+        model.save(run / "best_model.zip")
         model.learn(8)
         model.save(run / "model.zip")
     finally:
@@ -41,6 +43,7 @@ def finished_run(tmp_path_factory):
         "mean_abs_error_g": 7.5,
         "policy": "mean abs error 7.5 g",
         "random_mean_abs_error_g": 99.0,
+        "best": {"timesteps": 0, "eval_mean_abs_error_g": 6.5, "eval_success_rate": 0.8},
     }
     (run / "result.json").write_text(json.dumps(result))
     return run, model
@@ -51,7 +54,7 @@ def test_a_shipped_policy_acts_as_the_run_and_says_where_it_came_from(finished_r
     from pourbench.agents.ship import ship
 
     run, model = finished_run
-    meta_path = ship(run, "pournet-test", policy_dir=tmp_path)
+    meta_path = ship(run, "pournet-test", policy_dir=tmp_path, last=True)
     shipped = tmp_path / "pournet-test.zip"
     assert shipped.stat().st_size < 0.6 * (run / "model.zip").stat().st_size
     meta = json.loads(meta_path.read_text())
@@ -59,11 +62,28 @@ def test_a_shipped_policy_acts_as_the_run_and_says_where_it_came_from(finished_r
     assert (meta["steps"], meta["seed"], meta["wall_time_s"]) == (8, 0, 3.0)
     assert meta["machine"] == ["m"] and meta["warm_start"]["steps"] == 64
     assert meta["evaluation"]["mean_abs_error_g"] == 7.5
+    assert meta["checkpoint"] == {"file": "model.zip", "timesteps": 8}
     original, copy = model_policy(model), load_sb3_policy(shipped)
     rng = np.random.default_rng(0)
     for t in range(5):  # a sequence, so the LSTM's state carries over as it does in a pour
         obs = rng.uniform(0.0, 100.0, 12).astype(np.float32)
         assert np.array_equal(original(obs, t == 0), copy(obs, t == 0))
+
+
+def test_the_best_evaluated_model_ships_by_default(finished_run, tmp_path) -> None:
+    from pourbench.agents.loading import load_model, load_sb3_policy, model_policy
+    from pourbench.agents.ship import ship
+
+    run, model = finished_run
+    meta_path = ship(run, "pournet-test", policy_dir=tmp_path)
+    meta = json.loads(meta_path.read_text())
+    assert meta["checkpoint"]["file"] == "best_model.zip"
+    assert meta["checkpoint"]["eval_mean_abs_error_g"] == 6.5
+    best, last = model_policy(load_model(run / "best_model.zip")), model_policy(model)
+    shipped = load_sb3_policy(tmp_path / "pournet-test.zip")
+    obs = np.random.default_rng(1).uniform(0.0, 100.0, 12).astype(np.float32)
+    assert np.array_equal(shipped(obs, True), best(obs, True))
+    assert not np.array_equal(shipped(obs, True), last(obs, True))
 
 
 @pytest.mark.parametrize("name", ["PourNet", "a b", "", "-x", None])

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 
 import pytest
 
@@ -104,6 +105,14 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
     assert "lesson 1 (oil-like) from step 64" in printed
     assert "lesson 2 (honey-like) from step 128" in printed
     assert "evaluation at 128 steps" in printed and "evaluation at 256 steps" in printed
+    # the best of the evaluations at 128 and 256 steps and the final one is kept
+    errors = [
+        float(e) for e in re.findall(r"evaluation at \d+ steps: mean abs error ([\d.]+)", printed)
+    ]
+    best = result["best"]
+    assert best == json.loads((out / "state.json").read_text())["best"]
+    assert best["eval_mean_abs_error_g"] == pytest.approx(min(errors), abs=0.005)
+    assert best["timesteps"] in (128, 256) and (out / "best_model.zip").is_file()
     with open(out / "logs" / "0" / "progress.csv") as f:
         rows = list(csv.DictReader(f))
     keys = set(rows[0])
@@ -167,6 +176,8 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
         ({"dagger_rounds": 2}, "dagger_rounds=2 relabels .* needs warm_start_steps > 0"),
         ({"learning_rate": 0.0}, "learning_rate must be > 0"),
         ({"target_kl": -0.01}, "target_kl must be >= 0"),
+        ({"clone_std": -0.1}, "clone_std must be >= 0"),
+        ({"clone_std": 0.03}, "clone_std=0.03 is the cloned policy's spread: .* warm_start"),
         ({"final_error_per_g": float("nan")}, "final_error_per_g must be finite"),
         (
             {"algorithm": "sac", "icm": False, "curriculum": False, "target_kl": 0.02},

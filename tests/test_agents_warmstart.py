@@ -64,6 +64,12 @@ def test_cloning_fits_the_pd_actions_and_returns(demos, algorithm) -> None:
     assert float(std.mean()) == pytest.approx(fitted["std"], rel=1e-6)
     assert bool((std >= 0.1 - 1e-6).all()) and float(std.max()) < 0.5
     assert fitted["std"] < untrained["std"]
+    # a spread given instead of the residual, with the fit otherwise alike
+    torch.manual_seed(0)
+    model = make_model(algorithm, env, n_steps=64, verbose=0)
+    given = clone(model, d, 1, std=0.03)
+    assert given["std"] == pytest.approx(0.03)
+    assert torch.exp(model.policy.log_std.detach()).tolist() == pytest.approx([0.03, 0.03])
 
 
 def test_a_dagger_round_follows_the_learner_and_keeps_the_pd_labels(demos) -> None:

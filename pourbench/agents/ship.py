@@ -4,7 +4,10 @@
 ``pourbench/agents/policies/pournet-lstm.zip`` (the model, with a fresh optimiser: Adam's
 moments are two thirds of a saved LSTM model and acting needs none of them) beside
 ``pournet-lstm.json``: the command of each training session, steps, seed, wall time, git
-SHA, machine and date, the warm start's numbers and the run's final evaluation.
+SHA, machine and date, the warm start's numbers, the run's final evaluation and which
+checkpoint shipped. The shipped model is the run's best-evaluated one (``best_model.zip``,
+the usual choice, as SB3's ``EvalCallback`` keeps it), or with ``--last`` the model at the
+end of training.
 ``load_policy("pournet-lstm")`` and ``pourbench eval --policy pournet-lstm`` then find it.
 """
 
@@ -23,9 +26,12 @@ from pourbench.outputs import write_text_atomic
 _NAME = re.compile(r"^[a-z0-9][a-z0-9-]*$")
 
 
-def ship(run_dir: str | Path, name: str, policy_dir: str | Path = POLICY_DIR) -> Path:
+def ship(
+    run_dir: str | Path, name: str, policy_dir: str | Path = POLICY_DIR, last: bool = False
+) -> Path:
     """Copy the finished run in ``run_dir`` to ``<policy_dir>/<name>.zip`` with its
-    metadata ``<name>.json``; the metadata's path.
+    metadata ``<name>.json``; the metadata's path. The model is the run's best-evaluated
+    one when it kept one, unless ``last``: then the model at the end of training.
 
     Raises:
         InvalidParameterError: a name that is not lowercase letters, digits and dashes, or a
@@ -45,7 +51,12 @@ def ship(run_dir: str | Path, name: str, policy_dir: str | Path = POLICY_DIR) ->
         )
     state = json.loads((run / "state.json").read_text())
     result = json.loads((run / "result.json").read_text())
-    model = load_model(run / "model.zip")
+    best = result.get("best")
+    use_best = best is not None and not last and (run / "best_model.zip").is_file()
+    checkpoint = {"file": "best_model.zip", **best} if use_best else {
+        "file": "model.zip", "timesteps": state["timesteps"]
+    }  # fmt: skip
+    model = load_model(run / checkpoint["file"])
     policy = model.policy
     policy.optimizer = policy.optimizer_class(
         policy.parameters(), lr=model.lr_schedule(1.0), **policy.optimizer_kwargs
@@ -69,6 +80,7 @@ def ship(run_dir: str | Path, name: str, policy_dir: str | Path = POLICY_DIR) ->
         "date": [s.get("date") for s in sessions],
         "settings": state["args"],
         "warm_start": state.get("warm_start"),
+        "checkpoint": checkpoint,
         "evaluation": {
             "mean_abs_error_g": result["mean_abs_error_g"],
             "summary": result["policy"],
@@ -83,12 +95,14 @@ def ship(run_dir: str | Path, name: str, policy_dir: str | Path = POLICY_DIR) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
+    args = sys.argv[1:] if argv is None else list(argv)
+    last = "--last" in args
+    args = [a for a in args if a != "--last"]
     if len(args) != 2:
-        print("usage: python -m pourbench.agents.ship RUN_DIR NAME", file=sys.stderr)
+        print("usage: python -m pourbench.agents.ship RUN_DIR NAME [--last]", file=sys.stderr)
         return 2
     try:
-        path = ship(args[0], args[1])
+        path = ship(args[0], args[1], last=last)
     except ValueError as exc:
         print(f"pourbench.agents.ship: error: {exc}", file=sys.stderr)
         return 2

@@ -96,6 +96,11 @@ class TrainArgs:
             warm_start_steps steps, the PD labels the states it visits, and the clone is
             fitted again to everything labelled so far, with as many gradient steps as the
             first fit (DAgger; 0: cloning alone). Needs warm_start_steps.
+        clone_std: the policy's standard deviation per action dimension after the cloning
+            (0: the fit's residual, at least 0.1). Algorithm 4 keeps only the tilt rate's
+            sign that its phase allows, so noise around a hold tilts on and over-pours: the
+            smaller the spread, the closer PPO's noisy rollouts pour to its deterministic
+            policy (docs/training.md). Needs warm_start_steps.
         learning_rate: Adam's step size.
         target_kl: PPO and RecurrentPPO stop an update's epochs once the policy has moved
             this far (KL divergence) from the one that collected the rollout (0: no limit);
@@ -130,6 +135,7 @@ class TrainArgs:
     warm_start_steps: int = 0
     clone_epochs: int = 30
     dagger_rounds: int = 0
+    clone_std: float = 0.0
     learning_rate: float = 3e-4
     target_kl: float = 0.0
     final_error_per_g: float = 0.0
@@ -180,6 +186,7 @@ class TrainArgs:
         check_int("clone_epochs", self.clone_epochs, minimum=1)
         check_positive("learning_rate", self.learning_rate)
         check_finite("target_kl", self.target_kl, minimum=0.0)
+        check_finite("clone_std", self.clone_std, minimum=0.0)
         check_finite("final_error_per_g", self.final_error_per_g, minimum=0.0)
         if self.algorithm == "sac" and self.target_kl:
             raise InvalidParameterError(
@@ -194,6 +201,11 @@ class TrainArgs:
             raise InvalidParameterError(
                 f"dagger_rounds={self.dagger_rounds!r} relabels the clone's own rollouts: it "
                 "needs warm_start_steps > 0"
+            )
+        if self.clone_std and not self.warm_start_steps:
+            raise InvalidParameterError(
+                f"clone_std={self.clone_std!r} is the cloned policy's spread: it needs "
+                "warm_start_steps > 0"
             )
         if self.workers > self.num_envs:
             raise InvalidParameterError(
@@ -286,7 +298,8 @@ def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, Any]:
         f"warm start: the PD poured {len(demos.errors_g)} episodes, mean error "
         f"{demos.mean_abs_error_g:.2f} g; cloning for {args.clone_epochs} epochs"
     )
-    stats = clone(model, demos, args.clone_epochs, seed=args.seed, progress=True)
+    std = args.clone_std or None
+    stats = clone(model, demos, args.clone_epochs, seed=args.seed, std=std, progress=True)
     out: dict[str, Any] = {
         "steps": steps * args.num_envs,
         "episodes": len(demos.errors_g),
@@ -304,7 +317,7 @@ def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, Any]:
         )
         # as many gradient steps as the first fit, over all the labelled rollouts
         epochs = max(1, round(args.clone_epochs / (k + 1)))
-        out.update(clone(model, demos, epochs, seed=args.seed + k, progress=True))
+        out.update(clone(model, demos, epochs, seed=args.seed + k, std=std, progress=True))
     if rounds:
         out["dagger_mean_abs_error_g"] = rounds
     out["seconds"] = time.perf_counter() - t0
@@ -324,7 +337,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
 
     known_liquid(args.liquid)  # before any work: a typo fails in a second
     out = check_output_folder(args.out)
-    model_path, icm_path = out / "model.zip", out / "icm.pt"
+    model_path, icm_path, best_path = out / "model.zip", out / "icm.pt", out / "best_model.zip"
     state: dict[str, Any] = {"timesteps": 0, "train_s": 0.0, "sessions": 0, "history": []}
     if args.resume:
         state = _read_state(out, args)
@@ -395,7 +408,18 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         eval_kw = {"liquid": args.liquid, "target_g": args.target_g or None, "seed": 1000}
 
         def evaluate_now() -> Any:
-            return evaluate(model_policy(model), args.eval_episodes, progress=True, **eval_kw)
+            """Evaluate the model; keep it as ``best_model.zip`` when no evaluation of this
+            run (the clone's included) has had a smaller mean error."""
+            result = evaluate(model_policy(model), args.eval_episodes, progress=True, **eval_kw)
+            best, error = state.get("best"), result.mean_abs_error_g
+            if error == error and (best is None or error < best["eval_mean_abs_error_g"]):
+                _save(model, best_path)
+                state["best"] = {
+                    "timesteps": int(model.num_timesteps),
+                    "eval_mean_abs_error_g": result.mean_abs_error_g,
+                    "eval_success_rate": result.success_rate,
+                }
+            return result
 
         if args.warm_start_steps and not args.resume:
             state["warm_start"] = _warm_start(model, base, args)
@@ -424,7 +448,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
                 "train_s": total_s,
                 "sessions": state["sessions"] + 1,
                 "history": [*state.get("history", []), session],
-                **({"warm_start": state["warm_start"]} if "warm_start" in state else {}),
+                **{k: state[k] for k in ("warm_start", "best") if k in state},
             }
             write_text_atomic(out / "state.json", json.dumps(now, indent=2) + "\n")
 
@@ -456,6 +480,10 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
     plot = plot_training(out)
     print(f"wrote {plot}")
     final = evaluate_now()
+    saved = json.loads((out / "state.json").read_text())  # with the final evaluation's best
+    write_text_atomic(
+        out / "state.json", json.dumps({**saved, "best": state.get("best")}, indent=2) + "\n"
+    )
     rnd = evaluate("random", args.eval_episodes, progress=True, **eval_kw)
     pd = evaluate("pd", args.eval_episodes, progress=True, **eval_kw)
     result = {
@@ -471,6 +499,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         "pd": pd.summary(),
         "plot": str(plot),
         "warm_start": state.get("warm_start"),
+        "best": state.get("best"),
         "provenance": stamp,
     }
     write_text_atomic(out / "result.json", json.dumps(result, indent=2) + "\n")

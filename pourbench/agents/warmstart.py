@@ -123,16 +123,17 @@ def clone(
     lr: float = 1e-3,
     seed: int = 0,
     min_std: float = 0.1,
+    std: float | None = None,
     progress: bool = False,
 ) -> dict[str, float]:
     """Fit ``model``'s policy (PPO or RecurrentPPO) to ``demos`` for ``epochs`` passes: the
     mean action's squared distance to the PD's plus half the value network's squared error
     on the returns of the episodes that ended; then set the policy's standard deviation to
-    the mean's root-mean-square residual per action dimension, at least ``min_std``.
-    Returns the last epoch's mean action error (the squared distance, summed over the action,
-    of the mean clipped to the action bounds), its value error and the standard deviation
-    set (``std``, the mean over the action's dimensions). ``progress`` shows a progress bar
-    over the epochs."""
+    the mean's root-mean-square residual per action dimension, at least ``min_std``, or to
+    ``std`` when given. Returns the last epoch's mean action error (the squared distance,
+    summed over the action, of the mean clipped to the action bounds), its value error and
+    the standard deviation set (``std``, the mean over the action's dimensions).
+    ``progress`` shows a progress bar over the epochs."""
     import torch
     from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
     from sb3_contrib.common.recurrent.type_aliases import RNNStates
@@ -202,11 +203,13 @@ def clone(
         stats = dict(zip(("action_mse", "value_mse"), sums / len(order), strict=True))
         bar.set_postfix(stats)
     # the last epoch's residual, per action dimension: the Gaussian's maximum-likelihood spread
-    std = (residual / max(count, 1)).sqrt().clamp(min=min_std)
+    std_set = (residual / max(count, 1)).sqrt().clamp(min=min_std)
+    if std is not None:
+        std_set = torch.full_like(std_set, std)
     with torch.no_grad():
-        policy.log_std.copy_(std.log().to(policy.log_std.dtype))
+        policy.log_std.copy_(std_set.log().to(policy.log_std.dtype))
     policy.set_training_mode(False)
-    return {**stats, "std": float(std.mean())}
+    return {**stats, "std": float(std_set.mean())}
 
 
 def episode_batch(demos: Demonstrations, items: list[tuple[int, int, int]]) -> tuple:
