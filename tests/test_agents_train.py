@@ -256,7 +256,8 @@ def test_lstm_and_sac_runs_save_models_that_load_policy_reads(tmp_path, flags, a
     state = json.loads((out / "state.json").read_text())
     if "--warm-start-steps" in flags:  # 64 steps of 2 worlds' PD demonstrations, cloned
         warm = state["warm_start"]
-        assert warm["steps"] == 64 and warm["seconds"] > 0 and warm["std"] >= 0.1
+        # split over the curriculum's 3 lessons: 11 vector steps of 2 worlds in each
+        assert warm["steps"] == 66 and warm["seconds"] > 0 and warm["std"] >= 0.1
         # the clone evaluated on the episodes of every later evaluation, before PPO trains
         assert warm["eval_mean_abs_error_g"] >= 0 and 0 <= warm["eval_success_rate"] <= 1
         assert len(warm["dagger_mean_abs_error_g"]) == 1  # one DAgger round's rollout
@@ -267,3 +268,31 @@ def test_lstm_and_sac_runs_save_models_that_load_policy_reads(tmp_path, flags, a
     act = load_policy(out / "model.zip")
     obs = np.zeros(12, np.float32)
     assert act(obs, True).shape == (2,)
+
+
+def test_the_warm_start_demonstrates_every_lesson_and_leaves_the_first() -> None:
+    """With the curriculum, the PD's demonstrations are split evenly over the lessons (so
+    the clone has seen every lesson's liquids before PPO meets them): each part's worlds
+    pour liquids of its lesson's viscosity range, and the worlds go on in the first lesson."""
+    import numpy as np
+
+    from pourbench.agents.sb3 import SB3PourVecEnv
+    from pourbench.agents.train import lesson_rollout
+    from pourbench.envs.curriculum import load_curriculum
+
+    lessons = load_curriculum()
+    env = SB3PourVecEnv(2, seed=0, workers=1, liquid=None, lesson=0)
+    try:
+        demos = lesson_rollout(env, 3, list(range(len(lessons))))
+        after = env.reset()
+    finally:
+        env.close()
+    assert demos.obs.shape == (3, 2 * len(lessons), 12) and demos.starts[0].all()
+
+    def in_lesson(obs: np.ndarray, k: int) -> bool:
+        low, high = np.log10(np.array(lessons[k].ranges["viscosity_pa_s"]) * 1000.0)
+        return bool(np.all((obs[:, 3] >= low - 1e-5) & (obs[:, 3] <= high + 1e-5)))
+
+    for k in range(len(lessons)):  # obs feature 3: log10 of the viscosity in mPa·s
+        assert in_lesson(demos.obs[0, 2 * k : 2 * k + 2], k)
+    assert in_lesson(after, 0) and not in_lesson(after, 2)

@@ -282,18 +282,43 @@ def _read_state(out: Path, args: TrainArgs) -> dict[str, Any]:
     return state
 
 
+def lesson_rollout(env: Any, steps: int, lessons: list[int], learner: Any = None) -> Any:
+    """:func:`pourbench.agents.warmstart.demonstrate` for ``steps`` vector steps in each of
+    ``lessons`` (set on every world of the SB3 VecEnv ``env`` in turn), joined; the worlds
+    are left in the first lesson. No lessons: one rollout in the env as it is."""
+    from pourbench.agents.models import GAMMA
+    from pourbench.agents.warmstart import demonstrate, join
+
+    parts = []
+    for k in lessons or [None]:
+        if k is not None:
+            env.env_method("set_lesson", k)
+        parts.append(demonstrate(env, steps, GAMMA, progress=True, learner=learner))
+    if lessons:
+        env.env_method("set_lesson", lessons[0])
+    return join(*parts)
+
+
 def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, Any]:
     """Clone the PD baseline into ``model`` (:mod:`pourbench.agents.warmstart`) from
     ``args.warm_start_steps`` environment steps of ``env``, then ``args.dagger_rounds``
     DAgger rounds; what it measured (logged under ``clone/`` and kept in ``state.json``;
-    ``dagger_mean_abs_error_g``: the clone's own error in each round's rollout)."""
-    from pourbench.agents.models import GAMMA
-    from pourbench.agents.warmstart import clone, demonstrate, join
+    ``dagger_mean_abs_error_g``: the clone's own error in each round's rollout). With the
+    curriculum, each rollout is split evenly over its lessons, so the clone has seen every
+    lesson's liquids before PPO meets them; the worlds are left in the first lesson."""
+    from pourbench.agents.warmstart import clone, join
+    from pourbench.envs.curriculum import load_curriculum
 
     t0 = time.perf_counter()
-    steps = -(-args.warm_start_steps // args.num_envs)
-    print(f"warm start: {steps * args.num_envs} steps of the PD baseline's demonstrations")
-    demos = demonstrate(env, steps, GAMMA, progress=True)
+    lessons = list(range(len(load_curriculum()))) if args.curriculum else []
+    steps = -(-args.warm_start_steps // (args.num_envs * max(len(lessons), 1)))
+
+    def rollout(learner: Any = None) -> Any:
+        return lesson_rollout(env, steps, lessons, learner)
+
+    total = steps * args.num_envs * max(len(lessons), 1)
+    print(f"warm start: {total} steps of the PD baseline's demonstrations")
+    demos = rollout()
     print(
         f"warm start: the PD poured {len(demos.errors_g)} episodes, mean error "
         f"{demos.mean_abs_error_g:.2f} g; cloning for {args.clone_epochs} epochs"
@@ -301,14 +326,14 @@ def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, Any]:
     std = args.clone_std or None
     stats = clone(model, demos, args.clone_epochs, seed=args.seed, std=std, progress=True)
     out: dict[str, Any] = {
-        "steps": steps * args.num_envs,
+        "steps": total,
         "episodes": len(demos.errors_g),
         "pd_mean_abs_error_g": demos.mean_abs_error_g,
         **stats,
     }
     rounds: list[float] = []
     for k in range(1, args.dagger_rounds + 1):
-        new = demonstrate(env, steps, GAMMA, progress=True, learner=model)
+        new = rollout(learner=model)
         rounds.append(new.mean_abs_error_g)
         demos = join(demos, new)
         print(
