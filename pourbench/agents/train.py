@@ -103,8 +103,7 @@ class TrainArgs:
             policy (docs/training.md). Needs warm_start_steps.
         warm_start_lessons: with the curriculum, "first": the demonstrations and DAgger
             rollouts pour the first lesson's liquids, where PPO starts; "all": each rollout
-            is split evenly over the lessons (docs/training.md: at 250 steps a lesson and
-            world the clone poured water with 35 g, against 6.3 g from the first lesson's).
+            is split evenly over the lessons (measured in docs/training.md).
         learning_rate: Adam's step size.
         target_kl: PPO and RecurrentPPO stop an update's epochs once the policy has moved
             this far (KL divergence) from the one that collected the rollout (0: no limit);
