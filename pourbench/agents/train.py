@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -447,7 +448,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
             run (the clone's included) has had a smaller mean error."""
             result = evaluate(model_policy(model), args.eval_episodes, progress=True, **eval_kw)
             best, error = state.get("best"), result.mean_abs_error_g
-            if error == error and (best is None or error < best["eval_mean_abs_error_g"]):
+            if not math.isnan(error) and (best is None or error < best["eval_mean_abs_error_g"]):
                 _save(model, best_path)
                 state["best"] = {
                     "timesteps": int(model.num_timesteps),
