@@ -9,7 +9,7 @@ RecurrentPPO or SAC) or a callable ``f(obs, new_episode) -> action``.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -22,6 +22,10 @@ from pourbench.errors import check_int
 
 POLICIES = BUILTIN_POLICIES
 __all__ = ["POLICIES", "EvalResult", "evaluate", "load_sb3_policy", "make_policy", "pour_episode"]
+
+
+TABLE_6_2 = ("water", "ink", "oil", "glycerine", "honey", "ketchup")
+"""The thesis' Table 6.2 liquids, PourNet's evaluation set (Table 6.3)."""
 
 
 @dataclass(frozen=True)
@@ -47,6 +51,11 @@ class EvalResult:
     @property
     def success_rate(self) -> float:
         return float(np.mean(self.success))
+
+    @classmethod
+    def join(cls, *results: EvalResult) -> EvalResult:
+        """The episodes of ``results`` as one result."""
+        return cls(*(np.concatenate([getattr(r, f.name) for r in results]) for f in fields(cls)))
 
     def summary(self) -> str:
         """One line: mean absolute error ± std, mean spill, success rate."""

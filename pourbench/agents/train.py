@@ -81,7 +81,8 @@ class TrainArgs:
         icm_eta: scale of the intrinsic reward, eta.
         seed: seed of the model and of the worlds (a resumed run's k-th session seeds them
             with seed + 1000·k; evaluation uses seeds 1000…).
-        eval_episodes: episodes of each evaluation.
+        eval_episodes: episodes of each evaluation: pours of liquid, or with the curriculum
+            spread evenly over Table 6.2's six liquids (rounded up to a multiple of six).
         eval_every_steps: environment steps between evaluations during training (0: only
             at the end).
         threads: torch threads.
@@ -395,7 +396,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
     from tqdm import TqdmExperimentalWarning
 
     from pourbench.agents.callbacks import BudgetCallback, EvalCallback, PourStatsCallback
-    from pourbench.agents.evaluate import evaluate
+    from pourbench.agents.evaluate import TABLE_6_2, EvalResult, evaluate
     from pourbench.agents.icm import ICMConfig, ICMVecEnv
     from pourbench.agents.loading import load_model, model_policy
     from pourbench.agents.models import make_model
@@ -441,12 +442,20 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()
-        eval_kw = {"liquid": args.liquid, "target_g": args.target_g or None, "seed": 1000}
+        # a curriculum policy is evaluated on the liquids of Table 6.3, one on its liquid
+        liquids = TABLE_6_2 if args.curriculum else (args.liquid,)
+        per_liquid = -(-args.eval_episodes // len(liquids))
+        eval_kw = {"target_g": args.target_g or None, "seed": 1000}
+
+        def evaluate_all(policy: Any) -> EvalResult:
+            runs = (evaluate(policy, per_liquid, progress=True, liquid=name, **eval_kw)
+                    for name in liquids)  # fmt: skip
+            return EvalResult.join(*runs)
 
         def evaluate_now() -> Any:
             """Evaluate the model; keep it as ``best_model.zip`` when no evaluation of this
             run (the clone's included) has had a smaller mean error."""
-            result = evaluate(model_policy(model), args.eval_episodes, progress=True, **eval_kw)
+            result = evaluate_all(model_policy(model))
             best, error = state.get("best"), result.mean_abs_error_g
             if not math.isnan(error) and (best is None or error < best["eval_mean_abs_error_g"]):
                 _save(model, best_path)
@@ -520,8 +529,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
     write_text_atomic(
         out / "state.json", json.dumps({**saved, "best": state.get("best")}, indent=2) + "\n"
     )
-    rnd = evaluate("random", args.eval_episodes, progress=True, **eval_kw)
-    pd = evaluate("pd", args.eval_episodes, progress=True, **eval_kw)
+    rnd, pd = evaluate_all("random"), evaluate_all("pd")
     result = {
         "args": asdict(args),
         "train_s": train_s,

@@ -35,7 +35,6 @@ from tqdm import tqdm
 from pourbench.argtypes import shipped_policies
 from pourbench.bench._report import git_sha, markdown_table, write_report
 
-LIQUIDS = ("water", "ink", "oil", "glycerine", "honey", "ketchup")
 """Table 6.2's liquids, in Table 6.3's column order."""
 
 TARGETS_G = (50.0, 100.0, 150.0, 200.0)
@@ -215,10 +214,11 @@ def _averages(rows: list[dict[str, Any]], columns: list[str]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pourbench.agents.evaluate import TABLE_6_2
     from pourbench.containers import container_names
 
     quick = args.quick
-    liquids = ("water",) if quick else LIQUIDS
+    liquids = ("water",) if quick else TABLE_6_2
     targets = (100.0,) if quick else TARGETS_G
     pours = 2 if quick else POURS
     novel = container_names("novel")[:2] if quick else container_names("novel")
