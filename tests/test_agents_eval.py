@@ -116,3 +116,17 @@ def test_unknown_env_setting_lists_the_valid_ones() -> None:
     with pytest.raises(ValueError, match=r"PourConfig fields: .*max_steps") as exc:
         evaluate(_still, 1, liquidd="water")
     assert "liquid" in str(exc.value).split("fields:")[1]
+
+
+def test_results_join_episode_by_episode() -> None:
+    """Two evaluations joined are their episodes in order; the summary weighs each episode
+    alike, so a longer evaluation counts more than a shorter one."""
+    from pourbench.agents.evaluate import EvalResult
+
+    a = EvalResult(np.array([2.0, 4.0]), np.zeros(2), np.array([True, True]), np.array([9, 8]))
+    b = EvalResult(np.array([30.0]), np.array([1.5]), np.array([False]), np.array([250]))
+    both = EvalResult.join(a, b)
+    assert both.errors_g.tolist() == [2.0, 4.0, 30.0] and both.steps.tolist() == [9, 8, 250]
+    assert both.mean_abs_error_g == pytest.approx(12.0) and both.success_rate == pytest.approx(
+        2 / 3
+    )

@@ -105,6 +105,8 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
     assert "lesson 1 (oil-like) from step 64" in printed
     assert "lesson 2 (honey-like) from step 128" in printed
     assert "evaluation at 128 steps" in printed and "evaluation at 256 steps" in printed
+    # a curriculum run is evaluated on Table 6.2's six liquids, here one pour of each
+    assert re.search(r"evaluation at 128 steps: .* over 6 episodes", printed)
     # the best of the evaluations at 128 and 256 steps and the final one is kept
     errors = [
         float(e) for e in re.findall(r"evaluation at \d+ steps: mean abs error ([\d.]+)", printed)
