@@ -25,7 +25,7 @@ __all__ = ["POLICIES", "EvalResult", "evaluate", "load_sb3_policy", "make_policy
 
 
 TABLE_6_2 = ("water", "ink", "oil", "glycerine", "honey", "ketchup")
-"""The thesis' Table 6.2 liquids, PourNet's evaluation set (Table 6.3)."""
+"""The thesis' Table 6.2 liquids, PourNet's evaluation set, in Table 6.3's column order."""
 
 
 @dataclass(frozen=True)

@@ -35,8 +35,6 @@ from tqdm import tqdm
 from pourbench.argtypes import shipped_policies
 from pourbench.bench._report import git_sha, markdown_table, write_report
 
-"""Table 6.2's liquids, in Table 6.3's column order."""
-
 TARGETS_G = (50.0, 100.0, 150.0, 200.0)
 POURS = 10
 NOVEL_TARGET_G = 50.0
