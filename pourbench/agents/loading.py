@@ -7,7 +7,8 @@ the file).
 ``obs`` is one Pour-v0 observation (12 values), the action two values in [-1, 1];
 ``new_episode`` is True on an episode's first step. A recurrent policy keeps its LSTM state
 from call to call and starts afresh when ``new_episode`` is True. Saved models act
-deterministically.
+deterministically; a residual model (``pourbench train --residual``) acts on top of its own
+PD baseline.
 """
 
 from __future__ import annotations
@@ -116,20 +117,28 @@ def model_class(algorithm: str) -> type:
 
 def model_policy(model: Any) -> Policy:
     """An SB3 model in memory as ``f(obs, new_episode)`` acting deterministically; a
-    recurrent model's state is kept between calls and cleared when ``new_episode``."""
+    recurrent model's state is kept between calls and cleared when ``new_episode``; a
+    residual model (:mod:`pourbench.agents.residual`) acts on top of its PD baseline."""
     from sb3_contrib import RecurrentPPO
 
+    from pourbench.agents.residual import ATTRIBUTE, residual_policy
+
     if not isinstance(model, RecurrentPPO):
-        return lambda obs, new: model.predict(obs, deterministic=True)[0]
-    state: list[Any] = [None]
+        act: Policy = lambda obs, new: model.predict(obs, deterministic=True)[0]  # noqa: E731
+    else:
+        state: list[Any] = [None]
 
-    def act(obs: np.ndarray, new: bool) -> np.ndarray:
-        action, state[0] = model.predict(
-            obs, state=None if new else state[0], episode_start=np.array([new]), deterministic=True
-        )
-        return action
+        def act(obs: np.ndarray, new: bool) -> np.ndarray:
+            action, state[0] = model.predict(
+                obs,
+                state=None if new else state[0],
+                episode_start=np.array([new]),
+                deterministic=True,
+            )
+            return action
 
-    return act
+    scale = getattr(model, ATTRIBUTE, 0.0)
+    return residual_policy(act, scale) if scale else act
 
 
 def load_sb3_policy(path: str | Path) -> Policy:

@@ -33,9 +33,11 @@ import sys
 import time
 import typing
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from pourbench.errors import InvalidParameterError, check_finite, check_int, check_positive
 
@@ -51,6 +53,7 @@ _SAME_ON_RESUME = (
     "learning_rate",
     "target_kl",
     "final_error_per_g",
+    "residual",
 )
 
 
@@ -98,11 +101,12 @@ class TrainArgs:
             warm_start_steps steps, the PD labels the states it visits, and the clone is
             fitted again to everything labelled so far, with as many gradient steps as the
             first fit (DAgger; 0: cloning alone). Needs warm_start_steps.
-        clone_std: the policy's standard deviation per action dimension after the cloning
-            (0: the fit's residual, at least 0.1). Algorithm 4 keeps only the tilt rate's
+        clone_std: the policy's standard deviation per action dimension after the cloning,
+            or at the start of a residual policy (0: the fit's residual, at least 0.1; a
+            residual policy without warm start: SB3's 1). Algorithm 4 keeps only the tilt rate's
             sign that its phase allows, so noise around a hold tilts on and over-pours: the
             smaller the spread, the closer PPO's noisy rollouts pour to its deterministic
-            policy (docs/training.md). Needs warm_start_steps.
+            policy (docs/training.md). Needs warm_start_steps or residual.
         warm_start_lessons: with the curriculum, "first": the demonstrations and DAgger
             rollouts pour the first lesson's liquids, where PPO starts; "all": each rollout
             is split evenly over the lessons (measured in docs/training.md).
@@ -114,6 +118,11 @@ class TrainArgs:
         final_error_per_g: reward taken off per gram of error when an episode ends
             normally or at the step limit, a denser reward than the thesis' Algorithm 5 (0:
             Algorithm 5 alone; pourbench.envs.reward.RewardConfig).
+        residual: S in (0, 1]: the policy's action, times S, is added to the PD baseline's,
+            and its action head starts at zero, so training starts from the PD's pours
+            (pourbench.agents.residual; 0: the policy acts alone). The warm start then fits
+            the critic to the PD's returns and keeps the action at zero. PPO and
+            RecurrentPPO, without DAgger.
     """
 
     algorithm: str = "ppo"
@@ -145,6 +154,7 @@ class TrainArgs:
     learning_rate: float = 3e-4
     target_kl: float = 0.0
     final_error_per_g: float = 0.0
+    residual: float = 0.0
 
     def __post_init__(self) -> None:
         """Every setting checked at construction, before any training: a run that trains is
@@ -212,10 +222,22 @@ class TrainArgs:
             raise InvalidParameterError(
                 f"warm_start_lessons must be 'first' or 'all', got {self.warm_start_lessons!r}"
             )
-        if self.clone_std and not self.warm_start_steps:
+        check_finite("residual", self.residual, minimum=0.0)
+        if self.residual > 1:
             raise InvalidParameterError(
-                f"clone_std={self.clone_std!r} is the cloned policy's spread: it needs "
-                "warm_start_steps > 0"
+                f"residual={self.residual!r}: the scale of the correction added to the PD's "
+                "action (in [-1, 1]) must be in (0, 1], or 0 for none"
+            )
+        if self.residual and (self.algorithm == "sac" or self.dagger_rounds):
+            raise InvalidParameterError(
+                f"residual={self.residual!r} trains PPO or RecurrentPPO on top of the PD, "
+                f"without DAgger (algorithm={self.algorithm!r}, "
+                f"dagger_rounds={self.dagger_rounds!r})"
+            )
+        if self.clone_std and not (self.warm_start_steps or self.residual):
+            raise InvalidParameterError(
+                f"clone_std={self.clone_std!r} is the cloned or residual policy's spread: it "
+                "needs warm_start_steps > 0 or residual > 0"
             )
         if self.workers > self.num_envs:
             raise InvalidParameterError(
@@ -331,6 +353,8 @@ def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, Any]:
     total = steps * args.num_envs * max(len(lessons), 1)
     print(f"warm start: {total} steps of the PD baseline's demonstrations")
     demos = rollout()
+    if args.residual:  # the PD itself is the residual policy's zero action
+        demos = replace(demos, actions=np.zeros_like(demos.actions))
     print(
         f"warm start: the PD poured {len(demos.errors_g)} episodes, mean error "
         f"{demos.mean_abs_error_g:.2f} g; cloning for {args.clone_epochs} epochs"
@@ -401,6 +425,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
     from pourbench.agents.loading import load_model, model_policy
     from pourbench.agents.models import make_model
     from pourbench.agents.plots import plot_training
+    from pourbench.agents.residual import ATTRIBUTE, ResidualVecEnv, zero_action_head
     from pourbench.agents.sb3 import SB3PourVecEnv
     from pourbench.agents.schedule import CurriculumCallback
     from pourbench.envs.curriculum import lesson_at, load_curriculum
@@ -424,6 +449,8 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         **env_kw,
     )  # fmt: skip
     venv: Any = VecMonitor(base)
+    if args.residual:
+        venv = ResidualVecEnv(venv, args.residual)
     icm = None
     if args.icm:
         icm = venv = ICMVecEnv(venv, ICMConfig(eta=args.icm_eta, update_every=args.n_steps))
@@ -439,6 +466,12 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
                 seed=args.seed, learning_rate=args.learning_rate,
                 target_kl=args.target_kl or None,
             )  # fmt: skip
+            if args.residual:
+                setattr(model, ATTRIBUTE, args.residual)  # saved with the model
+                zero_action_head(model)
+                if args.clone_std and not args.warm_start_steps:
+                    with torch.no_grad():
+                        model.policy.log_std.fill_(math.log(args.clone_std))
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()
