@@ -50,12 +50,12 @@ def test_a_saved_sac_model_acts_as_in_memory(tmp_path) -> None:
 
 
 def test_unknown_names_say_which_exist(capsys) -> None:
-    with pytest.raises(ValueError, match=r"unknown policy 'pournet-lstm'; known: pd, random"):
-        load_policy("pournet-lstm")
+    with pytest.raises(ValueError, match=r"unknown policy 'pournet-gru'; known: pd, random"):
+        load_policy("pournet-gru")
     with pytest.raises(SystemExit):
-        main(["eval", "--policy", "pournet-lstm"])
+        main(["eval", "--policy", "pournet-gru"])
     err = capsys.readouterr().err
-    assert "'pournet-lstm' is neither a policy (pd, random" in err
+    assert "'pournet-gru' is neither a policy (pd, random" in err
     with pytest.raises(ValueError, match=r"policy must be one of .* got 7"):
         load_policy(7)
 

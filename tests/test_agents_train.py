@@ -119,7 +119,8 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
         rows = list(csv.DictReader(f))
     keys = set(rows[0])
     for key in ("icm/inverse_loss", "icm/forward_loss", "icm/intrinsic_reward",
-                "curriculum/lesson", "eval/mean_abs_error_g", "eval/success_rate"):  # fmt: skip
+                "curriculum/lesson", "eval/mean_abs_error_g", "eval/success_rate",
+                "eval/ketchup/mean_abs_error_g"):  # fmt: skip
         assert key in keys, key
     assert list((out / "logs" / "0").glob("events.out.tfevents.*"))
 
@@ -180,7 +181,10 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
         ({"target_kl": -0.01}, "target_kl must be >= 0"),
         ({"clone_std": -0.1}, "clone_std must be >= 0"),
         ({"warm_start_lessons": "some"}, "warm_start_lessons must be 'first' or 'all', got 'some'"),
-        ({"clone_std": 0.03}, "clone_std=0.03 is the cloned policy's spread: .* warm_start"),
+        (
+            {"clone_std": 0.03},
+            "clone_std=0.03 is the cloned or residual policy's spread: .* warm_start",
+        ),
         ({"final_error_per_g": float("nan")}, "final_error_per_g must be finite"),
         (
             {"algorithm": "sac", "icm": False, "curriculum": False, "target_kl": 0.02},

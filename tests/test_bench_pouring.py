@@ -8,6 +8,8 @@ import json
 
 import pytest
 
+from pourbench.agents.loading import policy_metadata
+from pourbench.argtypes import shipped_policies
 from pourbench.bench import pouring
 
 
@@ -98,3 +100,55 @@ def test_quick_pouring_table_is_written(tmp_path, monkeypatch) -> None:
     assert row["thesis_lstm_g"] == 2.3 and row["pd_g"] <= 10.0 and row["random_g"] == 100.0
     assert len(data["novel_containers"]) == 2
     assert "## Novel containers" in (tmp_path / "pouring.md").read_text()
+
+
+@pytest.mark.parametrize("name", shipped_policies())
+def test_the_table_says_how_each_shipped_policy_was_trained(name) -> None:
+    """The training issue allows a PD warm start or a denser reward for a shipped policy
+    only if the table says which was used: the line follows the policy's metadata."""
+    settings = policy_metadata(name)["settings"]
+    line = pouring.describe(name)
+    assert ("residual over the PD" in line) == bool(settings["residual"])
+    assert ("per gram of final error" in line) == bool(settings["final_error_per_g"])
+    assert f"curiosity {'on' if settings['icm'] else 'off'}" in line
+
+
+def test_the_training_line_names_the_start_and_the_reward(monkeypatch) -> None:
+    settings = {
+        "residual": 0.2,
+        "warm_start_steps": 8000,
+        "final_error_per_g": 0.02,
+        "icm": True,
+        "curriculum": False,
+    }
+    meta = {
+        "algorithm": "recurrent_ppo",
+        "policy": "lstm",
+        "steps": 1000,
+        "wall_time_s": 60.4,
+        "settings": settings,
+        "checkpoint": {"file": "best_model.zip", "timesteps": 640},
+    }
+    import pourbench.agents.loading as loading
+
+    monkeypatch.setattr(loading, "policy_metadata", lambda name: meta)
+    assert pouring.describe("x") == (
+        "`x`: recurrent_ppo (lstm), 1000 steps in 60 s, a residual over the PD baseline "
+        "(scale 0.2), reward Algorithm 5 + 0.02 per gram of final error, curiosity on, "
+        "curriculum off, checkpoint best_model.zip at 640 steps."
+    )
+    monkeypatch.setitem(settings, "residual", 0.0)
+    monkeypatch.setitem(settings, "final_error_per_g", 0.0)
+    line = pouring.describe("x")
+    assert "cloned from 8000 steps of the PD" in line and "reward Algorithm 5," in line
+
+
+def test_a_novel_container_too_small_for_the_target_is_named_not_averaged() -> None:
+    small = {"too_small": "target_g=50 g is more than container 'spoon' holds 3 g"}
+    results = {
+        **{("pd", "water", "spoon", 50.0, s): small for s in range(2)},
+        **{("pd", "water", "mug", 50.0, s): _result(2.0 * (s + 1)) for s in range(2)},
+    }
+    spoon, mug = pouring.container_table(results, ("pd",), ("spoon", "mug"), 2)
+    assert spoon == {"container": "spoon", "pd_g": None, "pd_ml": None, "note": small["too_small"]}
+    assert mug == {"container": "mug", "pd_g": 3.0, "pd_ml": 3.0, "note": ""}

@@ -480,15 +480,20 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         per_liquid = -(-args.eval_episodes // len(liquids))
         eval_kw = {"target_g": args.target_g or None, "seed": 1000}
 
-        def evaluate_all(policy: Any) -> EvalResult:
-            runs = (evaluate(policy, per_liquid, progress=True, liquid=name, **eval_kw)
-                    for name in liquids)  # fmt: skip
-            return EvalResult.join(*runs)
+        def evaluate_all(policy: Any, log: bool = False) -> EvalResult:
+            """``policy`` on the evaluation's liquids; ``log``: record each liquid's mean
+            error (``eval/<liquid>/mean_abs_error_g``) where there are several."""
+            runs = {name: evaluate(policy, per_liquid, progress=True, liquid=name, **eval_kw)
+                    for name in liquids}  # fmt: skip
+            if log and len(runs) > 1:
+                for name, res in runs.items():
+                    model.logger.record(f"eval/{name}/mean_abs_error_g", res.mean_abs_error_g)
+            return EvalResult.join(*runs.values())
 
         def evaluate_now() -> Any:
             """Evaluate the model; keep it as ``best_model.zip`` when no evaluation of this
             run (the clone's included) has had a smaller mean error."""
-            result = evaluate_all(model_policy(model))
+            result = evaluate_all(model_policy(model), log=True)
             best, error = state.get("best"), result.mean_abs_error_g
             if not math.isnan(error) and (best is None or error < best["eval_mean_abs_error_g"]):
                 _save(model, best_path)
@@ -506,6 +511,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
                 state["warm_start"]["eval_mean_abs_error_g"] = cloned.mean_abs_error_g
                 state["warm_start"]["eval_success_rate"] = cloned.success_rate
                 print(f"evaluation of the clone: {cloned.summary()}")
+                model.logger.dump(0)  # its rows per liquid, at step 0
             if left_s is not None:
                 left_s -= time.perf_counter() - t_start
 

@@ -8,7 +8,8 @@ exist, the PD baseline and a uniform random policy; the thesis' LSTM and FNN num
 
 **Novel containers.** Every container of the ``novel`` set × water 50 g × 3 pours, by the
 same policies, in grams and millilitres, beside the thesis' PourNet range for water (Table
-6.1, 3.8–8.66 ml).
+6.1, 3.8–8.66 ml). A container that cannot hold the target (the spoon) gets "–" and, in its
+``note``, what it holds.
 
 Each episode is one job: a fresh single env reset with its seed, so its result depends only
 on (policy, liquid, container, target, seed), not on the order or the process it runs in.
@@ -76,6 +77,37 @@ def policies() -> tuple[str, ...]:
     return (*(p for p in SHIPPED if p in shipped_policies()), *BASELINES)
 
 
+def describe(name: str) -> str:
+    """How the shipped policy ``name`` was trained, in one line of its metadata: algorithm,
+    steps, residual over the PD or warm start, reward, curiosity, curriculum, checkpoint."""
+    from pourbench.agents.loading import policy_metadata
+
+    meta = policy_metadata(name)
+    cfg = meta["settings"]
+    start = (
+        f"a residual over the PD baseline (scale {cfg['residual']:g})"
+        if cfg.get("residual")
+        else f"cloned from {cfg['warm_start_steps']} steps of the PD"
+        if cfg.get("warm_start_steps")
+        else "from scratch"
+    )
+    reward = "Algorithm 5" + (
+        f" + {cfg['final_error_per_g']:g} per gram of final error"
+        if cfg.get("final_error_per_g")
+        else ""
+    )
+    parts = [
+        f"{meta['algorithm']} ({meta['policy']})",
+        f"{meta['steps']} steps in {meta['wall_time_s']:.0f} s",
+        start,
+        f"reward {reward}",
+        f"curiosity {'on' if cfg['icm'] else 'off'}",
+        f"curriculum {'on' if cfg['curriculum'] else 'off'}",
+        f"checkpoint {meta['checkpoint']['file']} at {meta['checkpoint']['timesteps']} steps",
+    ]
+    return f"`{name}`: " + ", ".join(parts) + "."
+
+
 def episode(policy: str, liquid: str, container: str | None, target_g: float, seed: int) -> dict:
     """One pour of ``target_g`` of ``liquid`` by ``policy`` on Pour-v0: from the ``novel``
     set's ``container``, or (None) from the training set as the env draws it."""
@@ -83,6 +115,7 @@ def episode(policy: str, liquid: str, container: str | None, target_g: float, se
     from pourbench.agents.loading import load_policy
     from pourbench.envs.core import known_liquid
     from pourbench.envs.pour import PourEnv
+    from pourbench.errors import CapacityError
 
     env = PourEnv(liquid=liquid, container_set="training" if container is None else "novel")
     act = load_policy(policy, seed)
@@ -90,8 +123,12 @@ def episode(policy: str, liquid: str, container: str | None, target_g: float, se
     options: dict[str, Any] = {"target_g": target_g}
     if container is not None:
         options["container"] = container
-    info, steps = pour_episode(env, act, seed, options)
-    env.close()
+    try:
+        info, steps = pour_episode(env, act, seed, options)
+    except CapacityError as exc:  # a novel container too small for the target
+        return {"too_small": str(exc)}
+    finally:
+        env.close()
     density = known_liquid(liquid).density / 1000.0  # g/ml
     return {
         "error_g": float(info["error_g"]),
@@ -191,14 +228,19 @@ def container_table(
     results: dict[Job, dict], names: tuple[str, ...], containers: tuple[str, ...], pours: int
 ) -> list[dict[str, Any]]:
     """One row per novel container: each policy's mean absolute error over the pours of
-    50 g of water, g and ml."""
+    50 g of water, g and ml; None, and the reason in ``note``, for a container that cannot
+    hold the target."""
     rows = []
     for c in containers:
         row: dict[str, Any] = {"container": c}
+        small = ""
         for p in names:
             jobs = [(p, "water", c, NOVEL_TARGET_G, s) for s in range(pours)]
-            row[f"{p}_g"] = _mean(results, jobs)
-            row[f"{p}_ml"] = _mean(results, jobs, "error_ml")
+            small = small or next((results[j]["too_small"] for j in jobs
+                                   if "too_small" in results[j]), "")  # fmt: skip
+            row[f"{p}_g"] = None if small else _mean(results, jobs)
+            row[f"{p}_ml"] = None if small else _mean(results, jobs, "error_ml")
+        row["note"] = small
         rows.append(row)
     return rows
 
@@ -239,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
     crows = container_table(results, names, novel, novel_pours)
     columns = ["liquid", "target_g", "thesis_lstm_g", "thesis_fnn_g"]
     columns += [f"{p}_{k}" for p in names for k in ("g", "success")] + ["flags"]
-    ccolumns = ["container"] + [f"{p}_{k}" for p in names for k in ("g", "ml")]
+    ccolumns = ["container"] + [f"{p}_{k}" for p in names for k in ("g", "ml")] + ["note"]
     pending = [p for p in SHIPPED if p not in names]
     body = "\n".join(
         [
@@ -250,6 +292,7 @@ def run(args: argparse.Namespace) -> int:
                 if pending
                 else ""
             ),
+            *(f"- {describe(p)}" for p in names if p in SHIPPED),
             "",
             "## Table 6.3's protocol",
             "",
