@@ -12,7 +12,7 @@ from pourbench.agents import load_policy
 from pourbench.agents.evaluate import evaluate
 from pourbench.agents.models import make_model
 from pourbench.agents.pd import PDPourer
-from pourbench.agents.residual import ATTRIBUTE, ResidualVecEnv, combine, zero_action_head
+from pourbench.agents.residual import ATTRIBUTE, ResidualVecEnv, combine, start_residual
 from pourbench.agents.sb3 import SB3PourVecEnv
 from pourbench.agents.train import TrainArgs
 
@@ -57,8 +57,7 @@ def test_combine_adds_the_scaled_residual_and_clips() -> None:
 def _residual_model(tmp_path, scale: float, bias: tuple[float, float]) -> str:
     env = SB3PourVecEnv(1, seed=0, **ENV)
     model = make_model("recurrent_ppo", ResidualVecEnv(env, scale), n_steps=4, verbose=0)
-    setattr(model, ATTRIBUTE, scale)
-    zero_action_head(model)
+    start_residual(model, scale)
     with torch.no_grad():
         model.policy.action_net.bias.copy_(torch.tensor(bias))
     path = str(tmp_path / "residual.zip")
@@ -104,5 +103,24 @@ def test_bad_residual_settings_are_refused(kw, match) -> None:
         TrainArgs(**kw)
 
 
-def test_a_residual_policy_may_set_its_spread_without_a_warm_start() -> None:
-    assert TrainArgs(residual=0.2, clone_std=0.15).clone_std == 0.15
+@pytest.mark.parametrize("algorithm", ["ppo", "recurrent_ppo"])
+def test_a_new_residual_model_acts_zero_with_its_spread_and_keeps_its_scale(
+    algorithm, tmp_path
+) -> None:
+    """start_residual (what train --residual S --clone-std X does to a new model): mean
+    action 0 in any state, standard deviation X, scale S saved in the zip."""
+    from pourbench.agents.loading import load_model
+
+    assert TrainArgs(residual=0.2, clone_std=0.15).clone_std == 0.15  # no warm start needed
+    env = SB3PourVecEnv(1, seed=0, **ENV)
+    model = make_model(algorithm, env, n_steps=4, verbose=0)
+    start_residual(model, 0.2, 0.15)
+    obs = env.reset()
+    env.close()
+    states = np.stack([obs[0] * f for f in (0.5, 1.0, 2.0)])  # any states, not just one
+    kw = {"episode_start": np.ones(3, bool)} if algorithm == "recurrent_ppo" else {}
+    action, _ = model.predict(states, deterministic=True, **kw)
+    np.testing.assert_array_equal(action, np.zeros((3, 2)))
+    np.testing.assert_allclose(model.policy.log_std.exp().detach().numpy(), [0.15, 0.15])
+    model.save(tmp_path / "m.zip")
+    assert getattr(load_model(tmp_path / "m.zip"), ATTRIBUTE) == 0.2

@@ -20,9 +20,11 @@ policies.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
+import torch
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from pourbench.agents.pd import PDPourer
@@ -77,11 +79,14 @@ def residual_policy(act: Any, scale: float) -> Any:
     return policy
 
 
-def zero_action_head(model: Any) -> None:
-    """Set the action head of ``model``'s policy (PPO or RecurrentPPO) to zero, weights and
-    bias, so its mean action is 0 in every state: the residual policy starts as the PD."""
-    import torch
-
+def start_residual(model: Any, scale: float, std: float | None = None) -> None:
+    """Make the new PPO or RecurrentPPO ``model`` a residual policy of ``scale``: record the
+    scale (:data:`ATTRIBUTE`, saved with the model), set its action head to zero, weights
+    and bias, so its mean action is 0 in every state and it starts as the PD, and its
+    standard deviation to ``std`` per action dimension when given."""
+    setattr(model, ATTRIBUTE, scale)
     with torch.no_grad():
         model.policy.action_net.weight.zero_()
         model.policy.action_net.bias.zero_()
+        if std is not None:
+            model.policy.log_std.fill_(math.log(std))

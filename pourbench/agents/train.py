@@ -425,7 +425,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
     from pourbench.agents.loading import load_model, model_policy
     from pourbench.agents.models import make_model
     from pourbench.agents.plots import plot_training
-    from pourbench.agents.residual import ATTRIBUTE, ResidualVecEnv, zero_action_head
+    from pourbench.agents.residual import ResidualVecEnv, start_residual
     from pourbench.agents.sb3 import SB3PourVecEnv
     from pourbench.agents.schedule import CurriculumCallback
     from pourbench.envs.curriculum import lesson_at, load_curriculum
@@ -466,12 +466,8 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
                 seed=args.seed, learning_rate=args.learning_rate,
                 target_kl=args.target_kl or None,
             )  # fmt: skip
-            if args.residual:
-                setattr(model, ATTRIBUTE, args.residual)  # saved with the model
-                zero_action_head(model)
-                if args.clone_std and not args.warm_start_steps:
-                    with torch.no_grad():
-                        model.policy.log_std.fill_(math.log(args.clone_std))
+            if args.residual:  # with a warm start, the cloning then sets the spread anew
+                start_residual(model, args.residual, args.clone_std or None)
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()

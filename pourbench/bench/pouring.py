@@ -84,13 +84,12 @@ def describe(name: str) -> str:
 
     meta = policy_metadata(name)
     cfg = meta["settings"]
-    start = (
-        f"a residual over the PD baseline (scale {cfg['residual']:g})"
-        if cfg.get("residual")
-        else f"cloned from {cfg['warm_start_steps']} steps of the PD"
-        if cfg.get("warm_start_steps")
-        else "from scratch"
-    )
+    if cfg.get("residual"):
+        start = f"a residual over the PD baseline (scale {cfg['residual']:g})"
+    elif cfg.get("warm_start_steps"):
+        start = f"cloned from {cfg['warm_start_steps']} steps of the PD"
+    else:
+        start = "from scratch"
     reward = "Algorithm 5" + (
         f" + {cfg['final_error_per_g']:g} per gram of final error"
         if cfg.get("final_error_per_g")
