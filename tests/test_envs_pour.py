@@ -398,7 +398,9 @@ def test_rgb_render_headless() -> None:
 
 def test_vector_render_with_workers_headless() -> None:
     """The vector env renders every world, the worker's too: world 1's image is the single
-    env's given seed + 1."""
+    env's given seed + 1, not world 0's. Pixels are compared with a margin, as the two images
+    come from OpenGL contexts in separate processes; test_envs_workers compares the worlds'
+    numbers exactly."""
     code = (
         "import numpy as np, pourbench, gymnasium as gym\n"
         "kw = dict(render_mode='rgb_array', liquid='water')\n"
@@ -410,10 +412,15 @@ def test_vector_render_with_workers_headless() -> None:
         "assert len(imgs) == 2 and all(i.shape == (480, 640, 3) for i in imgs)\n"
         "env = gym.make('pourbench/Pour-v0', **kw)\n"
         "env.reset(seed=1, options=opts)\n"
-        "print('SAME', int(np.array_equal(imgs[1], env.render())))\n"
+        "one = env.render()\n"
+        "def changed(a, b):\n"
+        "    return int((np.abs(a.astype(int) - b).sum(-1) > 30).sum())\n"
+        "print('CHANGED', changed(imgs[1], one), changed(imgs[0], imgs[1]))\n"
         "venv.close()\n"
     )
-    assert _headless_stdout(code).split("SAME")[1].strip() == "1"
+    to_single, between_worlds = map(int, _headless_stdout(code).split("CHANGED")[1].split())
+    assert between_worlds > 200  # the seeds' liquids differ visibly
+    assert to_single <= between_worlds // 20, (to_single, between_worlds)
 
 
 def test_no_offscreen_library_leaves_the_backend_unset() -> None:
