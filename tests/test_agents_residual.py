@@ -124,3 +124,28 @@ def test_a_new_residual_model_acts_zero_with_its_spread_and_keeps_its_scale(
     np.testing.assert_allclose(model.policy.log_std.exp().detach().numpy(), [0.15, 0.15])
     model.save(tmp_path / "m.zip")
     assert getattr(load_model(tmp_path / "m.zip"), ATTRIBUTE) == 0.2
+
+
+def test_a_new_gsde_residual_model_acts_zero_and_spreads_at_most_its_std() -> None:
+    """With gSDE the spread is ‖features‖ · exp(log_std), features the last hidden layer's
+    tanh units: start_residual bounds it by the given std in every state, and the noise
+    drawn for a rollout is a function of the state (the same state, the same action)."""
+    assert TrainArgs(residual=0.3, sde=True).sde
+    with pytest.raises(ValueError, match="sde=True with warm_start_steps=100"):
+        TrainArgs(sde=True, warm_start_steps=100)
+    env = SB3PourVecEnv(1, seed=0, **ENV)
+    model = make_model("ppo", env, n_steps=4, sde=True, verbose=0)
+    start_residual(model, 0.3, 0.2)
+    obs = env.reset()
+    env.close()
+    states = np.stack([obs[0] * f for f in (0.5, 1.0, 2.0, 4.0)])
+    action, _ = model.predict(states, deterministic=True)
+    np.testing.assert_array_equal(action, np.zeros((4, 2)))
+    policy = model.policy
+    dist = policy.get_distribution(policy.obs_to_tensor(states)[0])
+    spread = dist.distribution.stddev.detach().numpy()
+    assert np.all(spread > 0.02) and np.all(spread <= 0.2)  # tanh features: ‖·‖ ≤ √d
+    policy.reset_noise()
+    twice = [model.predict(states[:1])[0] for _ in range(2)]
+    np.testing.assert_array_equal(*twice)
+    assert np.abs(twice[0]).max() > 0

@@ -141,6 +141,9 @@ def test_the_training_line_names_the_start_and_the_reward(monkeypatch) -> None:
     monkeypatch.setitem(settings, "final_error_per_g", 0.0)
     line = pouring.describe("x")
     assert "cloned from 8000 steps of the PD" in line and "reward Algorithm 5," in line
+    assert "gSDE" not in line
+    monkeypatch.setitem(settings, "sde", True)
+    assert "of the PD, exploring with gSDE, reward" in pouring.describe("x")
 
 
 def test_a_novel_container_too_small_for_the_target_is_named_not_averaged() -> None:

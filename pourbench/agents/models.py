@@ -69,6 +69,7 @@ def make_model(
     seed: int = 0,
     learning_rate: float = 3e-4,
     target_kl: float | None = None,
+    sde: bool = False,
     tensorboard_log: str | None = None,
     verbose: int = 1,
 ) -> Any:
@@ -84,6 +85,8 @@ def make_model(
         learning_rate: Adam's step size (SB3's default 3e-4).
         target_kl: PPO and RecurrentPPO stop an update's epochs once the policy's KL
             divergence from the rollout's passes this (None: no limit, SB3's default).
+        sde: generalized state-dependent exploration (SB3's ``use_sde``), its noise drawn
+            once per rollout.
         tensorboard_log: TensorBoard folder (None: none, or the logger set later).
         verbose: SB3's verbosity.
 
@@ -99,6 +102,7 @@ def make_model(
         "tensorboard_log": tensorboard_log,
         "gamma": GAMMA,
         "learning_rate": learning_rate,
+        "use_sde": sde,
     }
     rollout = n_steps * env.num_envs
     if algorithm == "ppo":

@@ -54,6 +54,7 @@ _SAME_ON_RESUME = (
     "target_kl",
     "final_error_per_g",
     "residual",
+    "sde",
 )
 
 
@@ -123,6 +124,11 @@ class TrainArgs:
             (pourbench.agents.residual; 0: the policy acts alone). The warm start then fits
             the critic to the PD's returns and keeps the action at zero. PPO and
             RecurrentPPO, without DAgger.
+        sde: explore with generalized state-dependent noise (gSDE, SB3's ``use_sde``): the
+            noise is a function of the state, drawn anew once per rollout, so a correction
+            held through a whole pour gets tried, where independent noise per step averages
+            out over the pour's hundreds of steps. Not with a warm start (its cloning fits
+            one spread per action dimension).
     """
 
     algorithm: str = "ppo"
@@ -155,6 +161,7 @@ class TrainArgs:
     target_kl: float = 0.0
     final_error_per_g: float = 0.0
     residual: float = 0.0
+    sde: bool = False
 
     def __post_init__(self) -> None:
         """Every setting checked at construction, before any training: a run that trains is
@@ -233,6 +240,11 @@ class TrainArgs:
                 f"residual={self.residual!r} trains PPO or RecurrentPPO on top of the PD, "
                 f"without DAgger (algorithm={self.algorithm!r}, "
                 f"dagger_rounds={self.dagger_rounds!r})"
+            )
+        if self.sde and self.warm_start_steps:
+            raise InvalidParameterError(
+                f"sde=True with warm_start_steps={self.warm_start_steps!r}: the cloning fits "
+                "one spread per action dimension, gSDE's spread is per feature; use one"
             )
         if self.clone_std and not (self.warm_start_steps or self.residual):
             raise InvalidParameterError(
@@ -464,7 +476,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
             model = make_model(
                 args.algorithm, venv, n_steps=args.n_steps, batch_size=args.batch_size,
                 seed=args.seed, learning_rate=args.learning_rate,
-                target_kl=args.target_kl or None,
+                target_kl=args.target_kl or None, sde=args.sde,
             )  # fmt: skip
             if args.residual:  # with a warm start, the cloning then sets the spread anew
                 start_residual(model, args.residual, args.clone_std or None)

@@ -79,7 +79,8 @@ def policies() -> tuple[str, ...]:
 
 def describe(name: str) -> str:
     """How the shipped policy ``name`` was trained, in one line of its metadata: algorithm,
-    steps, residual over the PD or warm start, reward, curiosity, curriculum, checkpoint."""
+    steps, residual over the PD or warm start, gSDE, reward, curiosity, curriculum,
+    checkpoint."""
     from pourbench.agents.loading import policy_metadata
 
     meta = policy_metadata(name)
@@ -90,6 +91,8 @@ def describe(name: str) -> str:
         start = f"cloned from {cfg['warm_start_steps']} steps of the PD"
     else:
         start = "from scratch"
+    if cfg.get("sde"):
+        start += ", exploring with gSDE"
     reward = "Algorithm 5" + (
         f" + {cfg['final_error_per_g']:g} per gram of final error"
         if cfg.get("final_error_per_g")
