@@ -244,7 +244,7 @@ class TrainArgs:
         if self.sde and self.warm_start_steps:
             raise InvalidParameterError(
                 f"sde=True with warm_start_steps={self.warm_start_steps!r}: the cloning fits "
-                "one spread per action dimension, gSDE's spread is per feature; use one"
+                "one spread per action dimension, gSDE's spread is per feature; drop one of them"
             )
         if self.clone_std and not (self.warm_start_steps or self.residual):
             raise InvalidParameterError(
