@@ -1,9 +1,10 @@
 """``pourbench demo``: a pour on the CPU, with a rerun recording.
 
-With the shipped ``pournet-lstm`` policy (:data:`DEMO_POLICY`), it pours ``--target-g`` of
-the liquid from ``--mass-g`` in the pouring container on ``pourbench/Pour-v0``, one episode,
-and prints the grams poured, spilled and left, the scale's reading and the error. Until that
-policy ships (or with ``--scripted``), the liquid core on its own: a source cup of
+With a shipped PourNet policy (the first of :data:`DEMO_POLICIES` that ships), it pours
+``--target-g`` of the liquid from ``--mass-g`` in the pouring container on
+``pourbench/Pour-v0``, one episode, and prints the grams poured, spilled and left, the
+scale's reading and the error. With none shipped (or with ``--scripted``), the liquid core
+on its own: a source cup of
 ``--mass-g`` is tilted about its lip over a receiving cup standing on a MuJoCo force sensor
 for ``--seconds``, and the poured / spilled / remaining grams and the sensor's reading are
 printed. The recording is moved into place only when the run finishes, so a failed run
@@ -36,12 +37,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--scripted",
         action="store_true",
-        help=f"the scripted tilt even when {DEMO_POLICY} ships",
+        help="the scripted tilt even when a PourNet policy ships",
     )
 
 
-DEMO_POLICY = "pournet-lstm"
-"""The shipped policy the demo pours with, once it exists."""
+DEMO_POLICIES = ("pournet-lstm", "pournet-mlp")
+"""The shipped policies the demo pours with, in order of preference."""
+
+
+def demo_policy() -> str | None:
+    """The first of :data:`DEMO_POLICIES` that ships, or None when none does."""
+    shipped = shipped_policies()
+    return next((name for name in DEMO_POLICIES if name in shipped), None)
 
 
 def run_demo(args: argparse.Namespace) -> int:
@@ -64,8 +71,9 @@ def run_demo(args: argparse.Namespace) -> int:
             f"seconds must be at least one solver step ({config.dt:g} s), got {args.seconds!r}"
         )
     check_output_path(args.out)  # before the scene is built: a bad path fails at once
-    if DEMO_POLICY in shipped_policies() and not getattr(args, "scripted", False):
-        return _policy_demo(args, mass_g)
+    policy = demo_policy()
+    if policy is not None and not getattr(args, "scripted", False):
+        return _policy_demo(args, policy, mass_g)
     scene = two_cup_scene(args.liquid, mass_g, config=config)
     solver = scene.solver
     rec = FluidRecorder(args.out, solver)
@@ -96,8 +104,8 @@ def run_demo(args: argparse.Namespace) -> int:
     return 1 if solver.diverged().any() else 0
 
 
-def _policy_demo(args: argparse.Namespace, mass_g: float) -> int:
-    """One Pour-v0 episode of :data:`DEMO_POLICY` pouring ``args.target_g`` of
+def _policy_demo(args: argparse.Namespace, policy: str, mass_g: float) -> int:
+    """One Pour-v0 episode of the shipped ``policy`` pouring ``args.target_g`` of
     ``args.liquid`` from ``mass_g``, recorded to ``args.out``."""
     from pourbench.agents.loading import load_policy
     from pourbench.envs.pour import PourEnv
@@ -108,13 +116,13 @@ def _policy_demo(args: argparse.Namespace, mass_g: float) -> int:
             f"target_g ({target_g:g} g) must be below mass_g ({mass_g:g} g), the liquid the "
             "pouring container starts with"
         )
-    act = load_policy(DEMO_POLICY)
+    act = load_policy(policy)
     env = PourEnv(liquid=args.liquid, record_path=args.out)
     try:
         obs, info = env.reset(seed=0, options={"target_g": target_g, "initial_g": mass_g})
         print(
-            f"{DEMO_POLICY} pours {target_g:g} g of {info['liquid']} from {mass_g:g} g in the "
-            f"{info['container']}",
+            f"{policy} pours {target_g:g} g of {info['liquid']} from {mass_g:g} g in the "
+            f"pouring container {info['container']!r}",
             file=sys.stderr,
         )
         bar = tqdm(desc="pouring", unit="step", file=sys.stderr)

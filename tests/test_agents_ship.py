@@ -61,7 +61,7 @@ def test_a_shipped_policy_acts_as_the_run_and_says_where_it_came_from(finished_r
     assert meta["commands"] == ["pourbench train --x"] and meta["git_sha"] == ["abc1234"]
     assert (meta["steps"], meta["seed"], meta["wall_time_s"]) == (8, 0, 3.0)
     assert meta["machine"] == ["m"] and meta["warm_start"]["steps"] == 64
-    assert meta["evaluation"]["mean_abs_error_g"] == 7.5
+    assert meta["final_evaluation"]["mean_abs_error_g"] == 7.5
     assert meta["checkpoint"] == {"file": "model.zip", "timesteps": 8}
     original, copy = model_policy(model), load_sb3_policy(shipped)
     rng = np.random.default_rng(0)

@@ -12,7 +12,9 @@ from pourbench.cli import main
 
 def test_demo_accounts_for_every_gram_and_writes_a_recording(tmp_path, capsys) -> None:
     out = tmp_path / "demo.rrd"
-    assert main(["demo", "--seconds", "2.5", "--mass-g", "100", "--out", str(out)]) == 0
+    assert (
+        main(["demo", "--scripted", "--seconds", "2.5", "--mass-g", "100", "--out", str(out)]) == 0
+    )
     text = capsys.readouterr().out
     grams = {
         key: float(re.search(rf"{key}:\s+([-\d.]+) g", text).group(1))
@@ -141,7 +143,7 @@ def test_ctrl_c_ends_a_run_in_one_line_and_keeps_the_previous_recording(
         raise KeyboardInterrupt
 
     monkeypatch.setattr(PBFSolver, "step", interrupted)
-    assert main(["demo", "--seconds", "0.5", "--out", str(out)]) == 130
+    assert main(["demo", "--scripted", "--seconds", "0.5", "--out", str(out)]) == 130
     err = capsys.readouterr().err
     assert err.strip().splitlines()[-1] == "pourbench: interrupted" and "Traceback" not in err
     assert out.read_bytes() == b"an earlier recording"
@@ -219,10 +221,17 @@ def test_an_atomic_write_whose_partial_sibling_is_a_folder_keeps_the_old_file(tm
     assert target.read_text() == "old" and (tmp_path / "t.json.partial").is_dir()
 
 
-def test_demo_pours_with_the_shipped_policy_once_it_exists(tmp_path, monkeypatch, capsys):
-    """With ``pournet-lstm`` shipped, the demo is one Pour-v0 episode of that policy: here the
-    PD baseline stands in for it (the demo asks load_policy for the shipped name), and the
-    grams it prints add up and match the target within the PD's error."""
+@pytest.mark.parametrize(
+    ("shipped", "expected"),
+    [(["pournet-mlp"], "pournet-mlp"), (["pournet-mlp", "pournet-lstm"], "pournet-lstm")],
+)
+def test_demo_pours_with_the_shipped_policy_once_it_exists(
+    tmp_path, monkeypatch, capsys, shipped, expected
+):
+    """With a PourNet policy shipped, the demo is one Pour-v0 episode of it, the LSTM before
+    the MLP: here the PD baseline stands in for it (the demo asks load_policy for the
+    shipped name), and the grams it prints add up and match the target within the PD's
+    error."""
     import pourbench.agents.loading as loading
     import pourbench.demo as demo
 
@@ -232,12 +241,12 @@ def test_demo_pours_with_the_shipped_policy_once_it_exists(tmp_path, monkeypatch
         asked.append(name)
         return load("pd", seed)
 
-    monkeypatch.setattr(demo, "shipped_policies", lambda: [demo.DEMO_POLICY])
+    monkeypatch.setattr(demo, "shipped_policies", lambda: shipped)
     monkeypatch.setattr(loading, "load_policy", shipped_pd)
     out = tmp_path / "pour.rrd"
     argv = ["demo", "--mass-g", "200", "--target-g", "100", "--out", str(out)]
     assert main(argv) == 0
-    assert asked == ["pournet-lstm"]
+    assert asked == [expected]
     text = capsys.readouterr().out
     grams = {
         key: float(re.search(rf"{key}:\s+([-\d.]+) g", text).group(1))

@@ -4,10 +4,10 @@
 ``pourbench/agents/policies/pournet-lstm.zip`` (the model, with a fresh optimiser: Adam's
 moments are two thirds of a saved LSTM model and acting needs none of them) beside
 ``pournet-lstm.json``: the command of each training session, steps, seed, wall time, git
-SHA, machine and date, the warm start's numbers, the run's final evaluation and which
-checkpoint shipped. The shipped model is the run's best-evaluated one (``best_model.zip``,
-the usual choice, as SB3's ``EvalCallback`` keeps it), or with ``--last`` the model at the
-end of training.
+SHA, machine and date, the warm start's numbers, which checkpoint shipped with its own
+evaluation, and the evaluation of the model at the end of training (``final_evaluation``).
+The shipped model is the run's best-evaluated one (``best_model.zip``, the usual choice, as
+SB3's ``EvalCallback`` keeps it), or with ``--last`` the model at the end of training.
 ``load_policy("pournet-lstm")`` and ``pourbench eval --policy pournet-lstm`` then find it.
 """
 
@@ -81,7 +81,8 @@ def ship(
         "settings": state["args"],
         "warm_start": state.get("warm_start"),
         "checkpoint": checkpoint,
-        "evaluation": {
+        "final_evaluation": {  # the model at the end of training, not the checkpoint
+            "timesteps": state["timesteps"],
             "mean_abs_error_g": result["mean_abs_error_g"],
             "summary": result["policy"],
             "random_mean_abs_error_g": result["random_mean_abs_error_g"],
