@@ -4,11 +4,11 @@ With a shipped PourNet policy (the first of :data:`DEMO_POLICIES` that ships), i
 ``--target-g`` of the liquid from ``--mass-g`` in the pouring container on
 ``pourbench/Pour-v0``, one episode, and prints the grams poured, spilled and left, the
 scale's reading and the error. With none shipped (or with ``--scripted``), the liquid core
-on its own: a source cup of
-``--mass-g`` is tilted about its lip over a receiving cup standing on a MuJoCo force sensor
-for ``--seconds``, and the poured / spilled / remaining grams and the sensor's reading are
-printed. The recording is moved into place only when the run finishes, so a failed run
-keeps the previous one. Other policies pour with ``pourbench eval``.
+on its own: a source cup of ``--mass-g`` is tilted about its lip over a receiving cup
+standing on a MuJoCo force sensor for ``--seconds``, and the poured / spilled / remaining
+grams and the sensor's reading are printed. The recording is moved into place only when
+the run finishes, so a failed run keeps the previous one. Other policies pour with
+``pourbench eval``.
 """
 
 from __future__ import annotations

@@ -223,6 +223,18 @@ def test_an_atomic_write_whose_partial_sibling_is_a_folder_keeps_the_old_file(tm
 
 @pytest.mark.parametrize(
     ("shipped", "expected"),
+    [([], None), (["pournet-gru"], None), (["pournet-mlp"], "pournet-mlp")],
+)
+def test_the_demo_policy_is_a_shipped_pournet_or_none(monkeypatch, shipped, expected) -> None:
+    """None (the scripted tilt) unless ``pournet-lstm`` or ``pournet-mlp`` ships."""
+    import pourbench.demo as demo
+
+    monkeypatch.setattr(demo, "shipped_policies", lambda: shipped)
+    assert demo.demo_policy() == expected
+
+
+@pytest.mark.parametrize(
+    ("shipped", "expected"),
     [(["pournet-mlp"], "pournet-mlp"), (["pournet-mlp", "pournet-lstm"], "pournet-lstm")],
 )
 def test_demo_pours_with_the_shipped_policy_once_it_exists(
