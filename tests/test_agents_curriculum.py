@@ -11,7 +11,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor
 from toy_envs import Toy
 
 from pourbench.agents.schedule import CurriculumCallback, step_progress
-from pourbench.envs.curriculum import load_curriculum
+from pourbench.envs.curriculum import draw_liquid, load_curriculum
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -53,3 +53,35 @@ def test_a_lesson_liquid_is_named_after_its_lesson() -> None:
     _, _, _, infos = named.step(np.zeros((1, 2), np.float32))
     assert not infos[0]["liquid"].startswith("lesson")
     named.close()
+
+
+def test_rehearsing_draws_every_lesson_up_to_the_current_one_alike() -> None:
+    """Lesson k alone without rehearsal; with it, lessons 0…k about equally often (3000
+    draws: each share within 0.05 of 1/3, about five standard deviations) and never a
+    later lesson."""
+    lessons = load_curriculum()
+    rng = np.random.default_rng(0)
+    names = [lesson.name for lesson in lessons]
+    plain = {draw_liquid(lessons, 2, rng).name for _ in range(200)}
+    assert plain == {f"lesson {names[2]}"}
+    first = {draw_liquid(lessons, 0, rng, rehearse=True).name for _ in range(200)}
+    assert first == {f"lesson {names[0]}"}
+    drawn = [draw_liquid(lessons, 2, rng, rehearse=True).name for _ in range(3000)]
+    shares = [drawn.count(f"lesson {n}") / len(drawn) for n in names]
+    assert sum(shares) == 1.0
+    assert all(abs(s - 1 / 3) < 0.05 for s in shares), shares
+
+
+def test_a_rehearsing_env_pours_earlier_lessons_liquids() -> None:
+    from pourbench.envs.pour import PourEnv
+
+    env = PourEnv(rehearse=True)
+    env.set_lesson(2)
+    seen = set()
+    for seed in range(8):
+        env.reset(seed=seed)
+        seen.add(env.batch.worlds[0].liquid.name)
+    assert len(seen) >= 2 and seen <= {f"lesson {x.name}" for x in env.batch.lessons}
+    env.close()
+    with pytest.raises(ValueError, match="rehearse must be True or False, got 1"):
+        PourEnv(rehearse=1)

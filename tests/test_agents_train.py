@@ -186,6 +186,8 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
             "clone_std=0.03 is the cloned or residual policy's spread: .* warm_start",
         ),
         ({"final_error_per_g": float("nan")}, "final_error_per_g must be finite"),
+        ({"rehearse": "yes"}, "rehearse must be True or False, got 'yes'"),
+        ({"rehearse": True, "curriculum": False}, "rehearse=True draws .* needs the curriculum"),
         (
             {"algorithm": "sac", "icm": False, "curriculum": False, "target_kl": 0.02},
             "target_kl=0.02 limits PPO's updates; SAC has none",

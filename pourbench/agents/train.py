@@ -55,6 +55,7 @@ _SAME_ON_RESUME = (
     "final_error_per_g",
     "residual",
     "sde",
+    "rehearse",
 )
 
 
@@ -129,6 +130,10 @@ class TrainArgs:
             held through a whole pour gets tried, where independent noise per step averages
             out over the pour's hundreds of steps. Not with a warm start (its cloning fits
             one spread per action dimension).
+        rehearse: with the curriculum, each episode of lesson k pours a liquid of a lesson
+            drawn uniformly among lessons 0…k, so the water-like liquids stay in training
+            through the honey-like lesson (docs/training.md: without it, every run forgets
+            them there).
     """
 
     algorithm: str = "ppo"
@@ -162,6 +167,7 @@ class TrainArgs:
     final_error_per_g: float = 0.0
     residual: float = 0.0
     sde: bool = False
+    rehearse: bool = False
 
     def __post_init__(self) -> None:
         """Every setting checked at construction, before any training: a run that trains is
@@ -179,7 +185,7 @@ class TrainArgs:
                 f"policy {self.policy!r} does not go with algorithm {self.algorithm!r}: lstm "
                 "is trained by recurrent_ppo, mlp by ppo or sac"
             )
-        for name in ("icm", "curriculum", "resume"):
+        for name in ("icm", "curriculum", "resume", "sde", "rehearse"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameterError(
                     f"{name} must be True or False, got {getattr(self, name)!r}"
@@ -245,6 +251,10 @@ class TrainArgs:
             raise InvalidParameterError(
                 f"sde=True with warm_start_steps={self.warm_start_steps!r}: the cloning fits "
                 "one spread per action dimension, gSDE's spread is per feature; drop one of them"
+            )
+        if self.rehearse and not self.curriculum:
+            raise InvalidParameterError(
+                "rehearse=True draws from the curriculum's earlier lessons: it needs the curriculum"
             )
         if self.clone_std and not (self.warm_start_steps or self.residual):
             raise InvalidParameterError(
@@ -450,6 +460,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         else:
             done = state["train_s"] / float(args.budget_s)  # type: ignore[arg-type]
         env_kw["lesson"] = lesson_at(done, load_curriculum())
+        env_kw["rehearse"] = args.rehearse
     if args.target_g:
         env_kw["target_range_g"] = (args.target_g, args.target_g)
     if args.final_error_per_g:

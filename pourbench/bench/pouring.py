@@ -104,7 +104,8 @@ def describe(name: str) -> str:
         start,
         f"reward {reward}",
         f"curiosity {'on' if cfg['icm'] else 'off'}",
-        f"curriculum {'on' if cfg['curriculum'] else 'off'}",
+        f"curriculum {'on' if cfg['curriculum'] else 'off'}"
+        + (" (rehearsing the earlier lessons)" if cfg.get("rehearse") else ""),
         f"checkpoint {meta['checkpoint']['file']} at {meta['checkpoint']['timesteps']} steps",
     ]
     return f"`{name}`: " + ", ".join(parts) + "."

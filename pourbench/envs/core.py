@@ -33,7 +33,7 @@ from gymnasium.error import ResetNeeded
 
 from pourbench.containers import Container, container_names, get_container
 from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, as_actions, handle_actions
-from pourbench.envs.curriculum import Lesson, load_curriculum
+from pourbench.envs.curriculum import Lesson, draw_liquid, load_curriculum
 from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
 from pourbench.errors import (
@@ -175,6 +175,8 @@ class PourConfig:
         container_set: "training" or "novel" (the pouring containers drawn from).
         liquid: a named profile, or None to draw from the current curriculum lesson.
         lesson: curriculum lesson index used when ``liquid`` is None.
+        rehearse: with ``liquid`` None, draw each reset's liquid from a lesson chosen
+            uniformly among lessons 0…``lesson``, rather than from ``lesson`` alone.
         curriculum: path of a curriculum TOML file (None: the shipped three lessons).
         solver: fluid solver settings (None: :func:`default_solver_config`).
     """
@@ -201,10 +203,13 @@ class PourConfig:
     container_set: str = "training"
     liquid: str | None = None
     lesson: int = 0
+    rehearse: bool = False
     curriculum: str | None = None
     solver: SolverConfig | None = None
 
     def __post_init__(self) -> None:
+        if not isinstance(self.rehearse, bool):
+            raise InvalidParameterError(f"rehearse must be True or False, got {self.rehearse!r}")
         positive = ("control_hz", "pour_tilt", "upright_tilt", "sensor_rate_hz", "sensor_cutoff_hz")
         for name in positive:
             check_positive(name, getattr(self, name))
@@ -460,7 +465,7 @@ class PourBatch:
         # liquid
         liq = opts.get("liquid", cfg.liquid)
         if liq is None:
-            liquid = self.lessons[self.lesson].sample(rng)
+            liquid = draw_liquid(self.lessons, self.lesson, rng, cfg.rehearse)
         else:
             liquid = known_liquid(liq)
         # container: one that holds the drawn range's largest target with room to pour,

@@ -3,7 +3,9 @@
 A lesson is a set of ranges for density (kg/m³), FleX's adhesion, cohesion and surface
 tension, and the dynamic viscosity (Pa·s), plus the share of training steps it takes. Each
 is drawn uniformly, the viscosity on a log scale (its range spans four decades). The default
-file, ``pourbench/assets/curriculum.toml``, holds the thesis' three lessons.
+file, ``pourbench/assets/curriculum.toml``, holds the thesis' three lessons. A liquid is
+drawn from the current lesson alone (the thesis' schedule), or, rehearsing, from it and the
+lessons before it (:func:`draw_liquid`).
 """
 
 from __future__ import annotations
@@ -109,6 +111,18 @@ def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
     if abs(total - 1.0) > 1e-6:
         raise ValueError(f"{path}: lesson fractions sum to {total}, not 1")
     return tuple(lessons)
+
+
+def draw_liquid(
+    lessons: tuple[Lesson, ...], k: int, rng: np.random.Generator, rehearse: bool = False
+) -> LiquidProfile:
+    """A liquid drawn from lesson ``k``; with ``rehearse``, from a lesson drawn uniformly
+    among lessons 0…k first, so that the earlier lessons' liquids stay in training after
+    their turn (without it, a policy trained last on honey-like liquids forgets water:
+    docs/training.md)."""
+    if rehearse:
+        k = int(rng.integers(k + 1))
+    return lessons[k].sample(rng)
 
 
 def lesson_at(progress: float, lessons: tuple[Lesson, ...]) -> int:

@@ -80,7 +80,7 @@ from pourbench.envs.core import (
     particle_grams,
     viscosity_feature,
 )
-from pourbench.envs.curriculum import load_curriculum
+from pourbench.envs.curriculum import draw_liquid, load_curriculum
 from pourbench.envs.ft_sensor import gravity_compensate, vertical_load
 from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
 from pourbench.envs.pour import RENDER_SIZE, action_space, check_settings, observation_space
@@ -430,7 +430,10 @@ class RobotPourEnv(gym.Env):
         if opts.get("container", self.container) != self.container:
             raise UnknownNameError("pouring container", opts["container"], (self.container,))
         liq = opts.get("liquid", cfg.liquid)
-        liquid = self.lessons[self.lesson].sample(rng) if liq is None else known_liquid(liq)
+        if liq is None:
+            liquid = draw_liquid(self.lessons, self.lesson, rng, cfg.rehearse)
+        else:
+            liquid = known_liquid(liq)
         target, initial = draw_amounts(
             opts, rng, cfg, liquid, self.container, self.capacity_g(liquid.density),
             self.solver_config.spacing,
