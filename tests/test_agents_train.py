@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+from dataclasses import replace
 
 import pytest
 
@@ -304,3 +305,19 @@ def test_the_warm_start_demonstrates_every_lesson_and_leaves_the_first() -> None
     for k in range(len(lessons)):  # obs feature 3: log10 of the viscosity in mPa·s
         assert in_lesson(demos.obs[0, 2 * k : 2 * k + 2], k)
     assert in_lesson(after, 0) and not in_lesson(after, 2)
+
+
+def test_a_run_from_before_a_setting_existed_resumes_with_its_default(tmp_path) -> None:
+    """A state.json without ``rehearse`` (written before the setting existed) resumes a run
+    that leaves it off, and is refused for one that turns it on."""
+    from pourbench.agents.train import TrainArgs, _read_state
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.zip").write_bytes(b"")
+    saved = {k: v for k, v in vars(_args(TINY)).items() if k != "rehearse"}
+    (out / "state.json").write_text(json.dumps({"args": saved}))
+    args = TrainArgs(**{k: v for k, v in vars(_args(TINY)).items() if k in saved})
+    assert _read_state(out, args)["args"] == saved
+    with pytest.raises(ValueError, match="has rehearse=False, not True"):
+        _read_state(out, replace(args, rehearse=True))

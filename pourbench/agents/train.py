@@ -33,7 +33,7 @@ import sys
 import time
 import typing
 import warnings
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -327,11 +327,12 @@ def _read_state(out: Path, args: TrainArgs) -> dict[str, Any]:
             f"--resume: {str(state_path)!r} is missing or unreadable ({type(exc).__name__}: "
             f"{exc}); it is written with every checkpoint"
         ) from None
-    for name in _SAME_ON_RESUME:
-        if saved.get(name) != getattr(args, name):
+    defaults = {f.name: f.default for f in fields(TrainArgs)}
+    for name in _SAME_ON_RESUME:  # a setting newer than the run has its default there
+        had = saved.get(name, defaults[name])
+        if had != getattr(args, name):
             raise InvalidParameterError(
-                f"--resume: the run in {str(out)!r} has {name}={saved.get(name)!r}, not "
-                f"{getattr(args, name)!r}"
+                f"--resume: the run in {str(out)!r} has {name}={had!r}, not {getattr(args, name)!r}"
             )
     return state
 
