@@ -187,6 +187,7 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
             "clone_std=0.03 is the cloned or residual policy's spread: .* warm_start",
         ),
         ({"final_error_per_g": float("nan")}, "final_error_per_g must be finite"),
+        ({"sde": 1}, "sde must be True or False, got 1"),
         ({"rehearse": "yes"}, "rehearse must be True or False, got 'yes'"),
         ({"rehearse": True, "curriculum": False}, "rehearse=True draws .* needs the curriculum"),
         (
@@ -315,9 +316,9 @@ def test_a_run_from_before_a_setting_existed_resumes_with_its_default(tmp_path) 
     out = tmp_path / "run"
     out.mkdir()
     (out / "model.zip").write_bytes(b"")
+    args = TrainArgs(**vars(_args(TINY)))
     saved = {k: v for k, v in vars(_args(TINY)).items() if k != "rehearse"}
     (out / "state.json").write_text(json.dumps({"args": saved}))
-    args = TrainArgs(**{k: v for k, v in vars(_args(TINY)).items() if k in saved})
     assert _read_state(out, args)["args"] == saved
     with pytest.raises(ValueError, match="has rehearse=False, not True"):
         _read_state(out, replace(args, rehearse=True))

@@ -132,8 +132,7 @@ class TrainArgs:
             one spread per action dimension).
         rehearse: with the curriculum, each episode of lesson k pours a liquid of a lesson
             drawn uniformly among lessons 0…k, so the water-like liquids stay in training
-            through the honey-like lesson (docs/training.md: without it, the runs there
-            measured forgot them).
+            through the honey-like lesson (why: docs/training.md).
     """
 
     algorithm: str = "ppo"

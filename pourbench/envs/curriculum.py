@@ -118,8 +118,7 @@ def draw_liquid(
 ) -> LiquidProfile:
     """A liquid drawn from lesson ``k``; with ``rehearse``, from a lesson drawn uniformly
     among lessons 0…k first, so that the earlier lessons' liquids stay in training after
-    their turn (without it, a policy trained last on honey-like liquids forgets water:
-    docs/training.md)."""
+    their turn (why: docs/training.md)."""
     if rehearse:
         k = int(rng.integers(k + 1))
     return lessons[k].sample(rng)
