@@ -8,10 +8,11 @@ import time
 
 import pytest
 from stable_baselines3 import PPO
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import DummyVecEnv
 from toy_envs import Toy
 
-from pourbench.agents.callbacks import BudgetCallback
+from pourbench.agents.callbacks import BudgetCallback, PourStatsCallback
 from pourbench.agents.plots import plot_training, read_progress
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -46,3 +47,30 @@ def test_the_plot_reads_every_session_in_step_order(tmp_path) -> None:
     assert "rollout/ep_rew_mean" not in series  # empty cells are no points
     png = plot_training(tmp_path)
     assert png == tmp_path / "training.png" and png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_the_running_average_is_logged_over_the_worlds_that_have_one() -> None:
+    """Worlds whose episodes all timed out report NaN (no completed episode): they are left
+    out of ``pour/average_error_g``, and a rollout where no world has one logs none."""
+    model = PPO("MlpPolicy", DummyVecEnv([Toy]), n_steps=16, batch_size=16, device="cpu")
+    model.set_logger(Logger(None, []))
+    stats = PourStatsCallback()
+    stats.init_callback(model)
+    nan = float("nan")
+
+    def step(dones: list[bool], errors: list[float], averages: list[float]) -> None:
+        infos = [
+            {"error_g": e, "average_error_g": a} for e, a in zip(errors, averages, strict=True)
+        ]
+        stats.locals = {"dones": dones, "infos": infos}
+        stats.on_step()
+
+    step([True, True, False], [90.0, 80.0, 0.0], [nan, nan, nan])
+    stats.on_rollout_end()
+    logged = model.logger.name_to_value
+    assert logged["pour/error_g"] == 85.0 and "pour/average_error_g" not in logged
+    step([True, False, True], [4.0, 0.0, 100.0], [6.0, nan, nan])
+    step([False, True, False], [0.0, 12.0, 0.0], [nan, 10.0, nan])
+    stats.on_rollout_end()
+    assert logged["pour/error_g"] == pytest.approx(116 / 3)
+    assert logged["pour/average_error_g"] == 8.0  # worlds 0 and 1; world 2 has none

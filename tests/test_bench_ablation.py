@@ -9,6 +9,7 @@ import json
 import pytest
 
 from pourbench.bench import ablation
+from pourbench.errors import InvalidParameterError
 
 
 def test_the_variants_differ_only_in_curiosity_and_curriculum() -> None:
@@ -29,7 +30,7 @@ def test_a_row_holds_the_final_and_best_evaluation(tmp_path) -> None:
     runs = {
         "ppo": {
             "eval/mean_abs_error_g": [(100.0, 40.0), (200.0, 9.0)],
-            "pour/average_error_g": [(64.0, 80.0), (128.0, 30.0)],
+            "pour/error_g": [(64.0, 80.0), (900.0, 50.0), (950.0, 30.0), (1000.0, 40.0)],
         }
     }
     (row,) = ablation.rows_of({"ppo": result}, runs)
@@ -39,11 +40,24 @@ def test_a_row_holds_the_final_and_best_evaluation(tmp_path) -> None:
         "train_h": 0.5,
         "final_eval_error_g": 12.0,
         "best_eval_error_g": 9.0,
-        "final_average_error_g": 30.0,
+        "final_training_error_g": 35.0,  # the points past 900 of 1000 steps
         "random_eval_error_g": 120.0,
     }
     png = ablation.plot(runs, tmp_path / "a.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_finished_run_evaluated_on_other_liquids_is_refused_not_read_back(tmp_path) -> None:
+    """A curriculum run evaluated on Table 6.2's six liquids (train's default) does not enter
+    the water table; the error names the folder and nothing is overwritten."""
+    out = tmp_path / "full" / "ppo_icm_curriculum"
+    out.mkdir(parents=True)
+    args = {"curriculum": True, "liquid": "water", "out": str(out)}  # no eval_liquid: default
+    written = json.dumps({"timesteps": 200_000, "args": args})
+    (out / "result.json").write_text(written)
+    with pytest.raises(InvalidParameterError, match=r"evaluated on Table 6\.2's six liquids"):
+        ablation.train_variant("ppo_icm_curriculum", quick=False, runs=tmp_path)
+    assert (out / "result.json").read_text() == written
 
 
 @pytest.mark.slow
@@ -61,6 +75,7 @@ def test_quick_ablation_trains_three_runs_and_reads_them_back(tmp_path, monkeypa
         state = json.loads((tmp_path / "runs/ablation/quick" / name / "state.json").read_text())
         assert {k: state["args"][k] for k in flags} == flags
         assert state["args"]["seed"] == 0 and state["args"]["budget_steps"] == 256
+        assert state["args"]["eval_liquid"] == "water"
     capsys.readouterr()
     assert ablation.run(args) == 0
     assert capsys.readouterr().err.count("read back") == 3

@@ -6,7 +6,8 @@ Logged keys (TensorBoard and ``progress.csv``), besides SB3's own ``rollout/ep_r
 ``rollout/success_rate`` (from ``info["is_success"]``):
 
 * ``pour/error_g``: mean |poured − target| of the episodes ended since the last dump, g;
-* ``pour/average_error_g``: the env's running average pouring error (thesis §6.5.1), g;
+* ``pour/average_error_g``: the env's running average pouring error (thesis §6.5.1), g,
+  averaged over the worlds that have completed an episode (absent until one has);
 * ``icm/inverse_loss``, ``icm/forward_loss``, ``icm/intrinsic_reward`` (mean per step);
 * ``eval/mean_abs_error_g``, ``eval/success_rate``: each periodic evaluation.
 """
@@ -30,21 +31,24 @@ class PourStatsCallback(BaseCallback):
         super().__init__()
         self.icm = icm
         self.errors: list[float] = []
-        self.average: float | None = None
+        self.averages: dict[int, float] = {}  # world -> its latest running average, g
 
     def _on_step(self) -> bool:
-        for done, info in zip(self.locals["dones"], self.locals["infos"], strict=True):
+        infos = self.locals["infos"]
+        for world, (done, info) in enumerate(zip(self.locals["dones"], infos, strict=True)):
             if done and "error_g" in info:
                 self.errors.append(float(info["error_g"]))
-                self.average = float(info["average_error_g"])
+                average = float(info["average_error_g"])
+                if np.isfinite(average):  # NaN: no completed episode in this world yet
+                    self.averages[world] = average
         return True
 
     def _on_rollout_end(self) -> None:
         if self.errors:
             self.logger.record("pour/error_g", float(np.mean(self.errors)))
             self.errors.clear()
-        if self.average is not None:
-            self.logger.record("pour/average_error_g", self.average)
+        if self.averages:
+            self.logger.record("pour/average_error_g", float(np.mean(list(self.averages.values()))))
         if self.icm is not None:
             for key, value in self.icm.stats.items():
                 self.logger.record(f"icm/{key}", value)

@@ -56,6 +56,7 @@ _SAME_ON_RESUME = (
     "residual",
     "sde",
     "rehearse",
+    "eval_liquid",
 )
 
 
@@ -78,6 +79,8 @@ class TrainArgs:
         budget_s: training budget in wall-clock seconds over all sessions (when neither is
             given: 900 s; give one, not both).
         liquid: the liquid without curriculum, and of the evaluations.
+        eval_liquid: the liquid of every evaluation ("": Table 6.2's six liquids with the
+            curriculum, else liquid); the ablation evaluates every variant on water.
         target_g: target of every episode, g (0: drawn per episode from 50 to 200 g).
         n_steps: rollout length per world (PPO, RecurrentPPO).
         seq_len: LSTM sequence length; sb3-contrib bounds a sequence by n_steps, so a
@@ -144,6 +147,7 @@ class TrainArgs:
     budget_steps: int | None = None
     budget_s: float | None = None
     liquid: str = "water"
+    eval_liquid: str = ""
     target_g: float = 0.0
     n_steps: int = 64
     seq_len: int = 64
@@ -288,6 +292,10 @@ class TrainArgs:
             )
         if not isinstance(self.liquid, str) or not self.liquid:
             raise InvalidParameterError(f"liquid must be a liquid name, got {self.liquid!r}")
+        if not isinstance(self.eval_liquid, str):
+            raise InvalidParameterError(
+                f"eval_liquid must be a liquid name or '', got {self.eval_liquid!r}"
+            )
         if not isinstance(self.out, str | os.PathLike) or not os.fspath(self.out):
             raise InvalidParameterError(f"out must be a non-empty folder path, got {self.out!r}")
         self.out = os.fspath(self.out)  # a str, as result.json records it
@@ -418,7 +426,8 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
     from pourbench.envs.core import known_liquid
     from pourbench.outputs import OutputPathError, check_output_folder, write_text_atomic
 
-    known_liquid(args.liquid)  # before any work: a typo fails in a second
+    for name in filter(None, (args.liquid, args.eval_liquid)):
+        known_liquid(name)  # before any work: a typo fails in a second
     out = check_output_folder(args.out)
     model_path, icm_path, best_path = out / "model.zip", out / "icm.pt", out / "best_model.zip"
     state: dict[str, Any] = {"timesteps": 0, "train_s": 0.0, "sessions": 0, "history": []}
@@ -494,8 +503,11 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()
-        # a curriculum policy is evaluated on the liquids of Table 6.3, one on its liquid
-        liquids = TABLE_6_2 if args.curriculum else (args.liquid,)
+        # by default a curriculum policy is evaluated on Table 6.3's liquids, one on its liquid
+        if args.eval_liquid:
+            liquids: tuple[str, ...] = (args.eval_liquid,)
+        else:
+            liquids = TABLE_6_2 if args.curriculum else (args.liquid,)
         per_liquid = -(-args.eval_episodes // len(liquids))
         eval_kw = {"target_g": args.target_g or None, "seed": 1000}
 

@@ -8,9 +8,12 @@ Three runs of ``pourbench train`` with the same algorithm, budget, seed and eval
 * ``ppo_icm_curriculum``: with both (the thesis' PourNet).
 
 Each is evaluated every tenth of its budget on the same water episodes (10 pours, seeds
-1000…, targets drawn by the env), and the figure plots that evaluation's mean absolute
-pouring error, and the training episodes' running average error (thesis §6.5.1), against
-environment steps. The runs live in ``runs/ablation/<variant>/``; a stopped ablation resumes
+1000…, targets drawn by the env; the curriculum run too, whose own default would be Table
+6.2's six liquids), and the figure plots that evaluation's mean absolute pouring error, and
+the mean error of the training episodes that ended in each rollout, against environment
+steps. The training curve counts every ended episode: the thesis' running average (§6.5.1)
+counts only completed ones, so a policy that never completes an episode would have none.
+The runs live in ``runs/ablation/<variant>/``; a stopped ablation resumes
 each run from its last checkpoint, and a finished run is read back, not trained again.
 """
 
@@ -23,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from pourbench.bench._report import git_sha, markdown_table, write_report
+from pourbench.errors import InvalidParameterError
 
 VARIANTS: dict[str, dict[str, bool]] = {
     "ppo": {"icm": False, "curriculum": False},
@@ -31,6 +35,7 @@ VARIANTS: dict[str, dict[str, bool]] = {
 }
 ALGORITHM, POLICY = "recurrent_ppo", "lstm"
 BUDGET_STEPS = 200_000
+EVAL_LIQUID = "water"
 QUICK = {"budget_steps": 256, "num_envs": 2, "n_steps": 32, "batch_size": 64}
 RUNS = Path("runs") / "ablation"
 COLUMNS = [
@@ -39,7 +44,7 @@ COLUMNS = [
     "train_h",
     "final_eval_error_g",
     "best_eval_error_g",
-    "final_average_error_g",
+    "final_training_error_g",
     "random_eval_error_g",
 ]
 
@@ -54,6 +59,14 @@ def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
     result = out / "result.json"
     if result.is_file():
         done = json.loads(result.read_text())
+        had = done["args"]
+        evaluated_on = had.get("eval_liquid") or ("" if had["curriculum"] else had["liquid"])
+        if evaluated_on != EVAL_LIQUID:
+            where = evaluated_on or "Table 6.2's six liquids"
+            raise InvalidParameterError(
+                f"ablation: the run in {str(out)!r} was evaluated on {where}, not "
+                f"{EVAL_LIQUID}; move it away to train the variant anew"
+            )
         if done["timesteps"] >= steps:
             print(f"ablation: {name} read back from {result}", file=sys.stderr)
             return done
@@ -66,6 +79,7 @@ def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
         seq_len=n_steps,
         eval_every_steps=max(1, steps // 10),
         eval_episodes=1 if quick else 10,
+        eval_liquid=EVAL_LIQUID,
         workers=1 if quick else 0,
         out=str(out),
         resume=(out / "model.zip").is_file(),
@@ -75,11 +89,11 @@ def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
 
 
 def curves(out: Path) -> dict[str, list[tuple[float, float]]]:
-    """A run's evaluation error and running average error against steps."""
+    """A run's evaluation error and training episodes' error against steps."""
     from pourbench.agents.plots import read_progress
 
     series = read_progress(sorted(out.glob("logs/*/progress.csv")))
-    return {k: series.get(k, []) for k in ("eval/mean_abs_error_g", "pour/average_error_g")}
+    return {k: series.get(k, []) for k in ("eval/mean_abs_error_g", "pour/error_g")}
 
 
 def plot(runs: dict[str, dict[str, list[tuple[float, float]]]], png: Path) -> Path:
@@ -92,7 +106,7 @@ def plot(runs: dict[str, dict[str, list[tuple[float, float]]]], png: Path) -> Pa
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
     titles = {
         "eval/mean_abs_error_g": "evaluation: mean absolute error on water, g",
-        "pour/average_error_g": "training: running average pouring error, g",
+        "pour/error_g": "training: mean error of the episodes ended per rollout, g",
     }
     for ax, (key, title) in zip(axes, titles.items(), strict=True):
         for name, series in runs.items():
@@ -116,11 +130,13 @@ def plot(runs: dict[str, dict[str, list[tuple[float, float]]]], png: Path) -> Pa
 
 def rows_of(results: dict[str, dict], runs: dict[str, dict]) -> list[dict[str, Any]]:
     """One row per variant: steps, wall time, final and best evaluation error, the last
-    running average error, and a random policy's error on the same episodes."""
+    training episodes' mean error over the last tenth of the steps, and a random policy's
+    error on the same episodes."""
     rows = []
     for name, r in results.items():
         evals = [e for _, e in runs[name]["eval/mean_abs_error_g"]]
-        averages = [a for _, a in runs[name]["pour/average_error_g"]]
+        training = runs[name]["pour/error_g"]
+        late = [e for s, e in training if s > 0.9 * r["timesteps"]]
         rows.append(
             {
                 "variant": name,
@@ -128,7 +144,7 @@ def rows_of(results: dict[str, dict], runs: dict[str, dict]) -> list[dict[str, A
                 "train_h": r["total_train_s"] / 3600.0,
                 "final_eval_error_g": r["mean_abs_error_g"],
                 "best_eval_error_g": min([*evals, r["mean_abs_error_g"]]),
-                "final_average_error_g": averages[-1] if averages else None,
+                "final_training_error_g": sum(late) / len(late) if late else None,
                 "random_eval_error_g": r["random_mean_abs_error_g"],
             }
         )
@@ -148,8 +164,9 @@ def run(args: argparse.Namespace) -> int:
             "`ppo_icm` (with the curiosity module), `ppo_icm_curriculum` (with the liquid "
             "curriculum too: the thesis' PourNet). `final_eval_error_g` / `best_eval_error_g`: "
             "the evaluation on water (10 pours, seeds 1000…) at the end and at its best; "
-            "`final_average_error_g`: the training episodes' running average error (thesis "
-            "§6.5.1) at the end; `random_eval_error_g`: a random policy on the same episodes. "
+            "`final_training_error_g`: the mean error of the training episodes that ended in "
+            "the last tenth of the steps (every ended episode, timed out ones too); "
+            "`random_eval_error_g`: a random policy on the same episodes. "
             "Each run's sessions (command, git SHA, machine) are in its `state.json`.",
             "",
             markdown_table(rows, COLUMNS),
