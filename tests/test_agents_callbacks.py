@@ -50,27 +50,28 @@ def test_the_plot_reads_every_session_in_step_order(tmp_path) -> None:
 
 
 def test_the_running_average_is_logged_over_the_worlds_that_have_one() -> None:
-    """Worlds whose episodes all timed out report NaN (no completed episode): they are left
-    out of ``pour/average_error_g``, and a rollout where no world has one logs none."""
+    """Worlds whose episodes all timed out have no completed episode (their average reads
+    0): they are left out of ``pour/average_error_g``, and a rollout where no world has one
+    logs none."""
     model = PPO("MlpPolicy", DummyVecEnv([Toy]), n_steps=16, batch_size=16, device="cpu")
     model.set_logger(Logger(None, []))
     stats = PourStatsCallback()
     stats.init_callback(model)
-    nan = float("nan")
 
     def step(dones: list[bool], errors: list[float], averages: list[float]) -> None:
-        infos = [
-            {"error_g": e, "average_error_g": a} for e, a in zip(errors, averages, strict=True)
+        infos = [  # a world with a completed episode has a nonzero average here
+            {"error_g": e, "average_error_g": a, "completed_episodes": int(a > 0)}
+            for e, a in zip(errors, averages, strict=True)
         ]
         stats.locals = {"dones": dones, "infos": infos}
         stats.on_step()
 
-    step([True, True, False], [90.0, 80.0, 0.0], [nan, nan, nan])
+    step([True, True, False], [90.0, 80.0, 0.0], [0.0, 0.0, 0.0])
     stats.on_rollout_end()
     logged = model.logger.name_to_value
     assert logged["pour/error_g"] == 85.0 and "pour/average_error_g" not in logged
-    step([True, False, True], [4.0, 0.0, 100.0], [6.0, nan, nan])
-    step([False, True, False], [0.0, 12.0, 0.0], [nan, 10.0, nan])
+    step([True, False, True], [4.0, 0.0, 100.0], [6.0, 0.0, 0.0])
+    step([False, True, False], [0.0, 12.0, 0.0], [0.0, 10.0, 0.0])
     stats.on_rollout_end()
     assert logged["pour/error_g"] == pytest.approx(116 / 3)
     assert logged["pour/average_error_g"] == 8.0  # worlds 0 and 1; world 2 has none

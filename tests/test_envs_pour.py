@@ -480,6 +480,7 @@ def test_episode_ends_upright_with_algorithm5_bonus() -> None:
     assert info["poured_g"] > 20.0
     # first completed episode: the running average is this episode's error
     assert info["average_error_g"] == pytest.approx(info["error_g"])
+    assert info["completed_episodes"] == 1
     bonus = (info["error_g"] <= 10.0) + (info["average_error_g"] <= 20.0)
     assert rewards[-1] == pytest.approx(bonus)
     assert all(r in (0.0, pytest.approx(-1 / env.config.max_steps)) for r in rewards[:-1])
@@ -489,7 +490,7 @@ def test_episode_ends_upright_with_algorithm5_bonus() -> None:
     assert obs[10] == pytest.approx(info["error_g"], abs=1e-4)
     assert info2["average_error_g"] == pytest.approx(info["error_g"])
     fresh_obs, fresh_info = PourEnv(liquid="water").reset(seed=3)  # a new environment: none yet
-    assert fresh_obs[10] == 0.0 and np.isnan(fresh_info["average_error_g"])
+    assert fresh_obs[10] == 0.0 and fresh_info["completed_episodes"] == 0
 
 
 def test_rerun_recording(tmp_path) -> None:

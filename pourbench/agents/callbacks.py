@@ -38,9 +38,8 @@ class PourStatsCallback(BaseCallback):
         for world, (done, info) in enumerate(zip(self.locals["dones"], infos, strict=True)):
             if done and "error_g" in info:
                 self.errors.append(float(info["error_g"]))
-                average = float(info["average_error_g"])
-                if np.isfinite(average):  # NaN: no completed episode in this world yet
-                    self.averages[world] = average
+                if info["completed_episodes"] > 0:  # else the world has no average yet
+                    self.averages[world] = float(info["average_error_g"])
         return True
 
     def _on_rollout_end(self) -> None:

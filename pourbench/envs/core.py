@@ -673,7 +673,8 @@ class PourBatch:
         info["collided"] = collided
         info["sim_diverged"] = diverged
         info["is_success"] = finished & (info["error_g"] <= cfg.reward.success_g)
-        info["average_error_g"] = self.history.reported()
+        info["average_error_g"] = avg
+        info["completed_episodes"] = self.history.count.copy()
         self.done |= terminated | truncated
         return self.observe(avg), reward.astype(float), terminated, truncated, info
 
@@ -720,7 +721,8 @@ class PourBatch:
         info = self.measure()
         for key in ("collided", "sim_diverged", "is_success"):
             info[key] = np.zeros(self.n, bool)
-        info["average_error_g"] = self.history.reported()
+        info["average_error_g"] = self.history.average()
+        info["completed_episodes"] = self.history.count.copy()
         return info
 
     def weight_g_true(self, world: int) -> float:

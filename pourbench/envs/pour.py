@@ -97,7 +97,8 @@ class PourEnv(gym.Env):
     ``info``: ``poured_g``, ``spilled_g``, ``remaining_g``, ``in_flight_g``, ``initial_g``,
     ``error_g``, ``target_g``, ``measured_g``, ``liquid``, ``container``, ``tilt``,
     ``collided``, ``sim_diverged``, ``is_success``, ``average_error_g`` (the running
-    average error of the last completed episodes, thesis §6.5.1; NaN before the first).
+    average error of the last completed episodes, thesis §6.5.1; 0 before the first),
+    ``completed_episodes`` (episodes completed so far, the average's count up to its window).
 
     Args:
         render_mode: None or "rgb_array" (MuJoCo offscreen renderer, particles as spheres;

@@ -97,12 +97,6 @@ class ErrorHistory:
         self.count[w] += 1
 
     def average(self) -> np.ndarray:
-        """(n,) average error per world, g (0 before any completed episode: the
-        observation's value)."""
+        """(n,) average error per world, g (0 before any completed episode)."""
         filled = np.minimum(self.count, self.window)
         return self.errors.sum(1) / np.maximum(filled, 1)
-
-    def reported(self) -> np.ndarray:
-        """(n,) :meth:`average`, NaN before any completed episode (``info``'s value: no
-        average exists yet, and 0 g would read as a perfect one)."""
-        return np.where(self.count > 0, self.average(), np.nan)

@@ -503,7 +503,8 @@ class RobotPourEnv(gym.Env):
         self._was_reset, self._done = True, False
         info = self._info(self._measure())
         info.update(collided=False, planner_failed=False, sim_diverged=False, is_success=False)
-        info["average_error_g"] = float(self.history.reported()[0])
+        info["average_error_g"] = float(self.history.average()[0])
+        info["completed_episodes"] = int(self.history.count[0])
         if self._recorder is not None:
             self._recorder.log()
         return self._observe(self.history.average()), info
@@ -631,7 +632,8 @@ class RobotPourEnv(gym.Env):
             planner_failed=bool(planner_failed),
             sim_diverged=diverged,
             is_success=bool(finished and out["error_g"] <= cfg.reward.success_g),
-            average_error_g=float(self.history.reported()[0]),
+            average_error_g=float(avg[0]),
+            completed_episodes=int(self.history.count[0]),
             planner_qp_failed=bool(qp_failed),
             pos_error_m=pos_err,
             rot_error_rad=rot_err,
