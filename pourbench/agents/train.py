@@ -300,6 +300,15 @@ class TrainArgs:
             raise InvalidParameterError(f"out must be a non-empty folder path, got {self.out!r}")
         self.out = os.fspath(self.out)  # a str, as result.json records it
 
+    def eval_liquids(self) -> tuple[str, ...]:
+        """The liquids of every evaluation: eval_liquid, else Table 6.2's six with the
+        curriculum, else liquid."""
+        from pourbench.agents.evaluate import TABLE_6_2
+
+        if self.eval_liquid:
+            return (self.eval_liquid,)
+        return TABLE_6_2 if self.curriculum else (self.liquid,)
+
 
 def _save(model: Any, path: Path) -> None:
     """``model`` to ``path`` (``.zip``) through a temporary file."""
@@ -451,7 +460,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
     from tqdm import TqdmExperimentalWarning
 
     from pourbench.agents.callbacks import BudgetCallback, EvalCallback, PourStatsCallback
-    from pourbench.agents.evaluate import TABLE_6_2, EvalResult, evaluate
+    from pourbench.agents.evaluate import EvalResult, evaluate
     from pourbench.agents.icm import ICMConfig, ICMVecEnv
     from pourbench.agents.loading import load_model, model_policy
     from pourbench.agents.models import make_model
@@ -503,11 +512,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()
-        # by default a curriculum policy is evaluated on Table 6.3's liquids, one on its liquid
-        if args.eval_liquid:
-            liquids: tuple[str, ...] = (args.eval_liquid,)
-        else:
-            liquids = TABLE_6_2 if args.curriculum else (args.liquid,)
+        liquids = args.eval_liquids()
         per_liquid = -(-args.eval_episodes // len(liquids))
         eval_kw = {"target_g": args.target_g or None, "seed": 1000}
 

@@ -51,6 +51,8 @@ COLUMNS = [
 
 def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
     """Train (or resume, or read back) one variant; its ``result.json``."""
+    from dataclasses import fields
+
     from pourbench.agents.train import TrainArgs, train
 
     out = runs / ("quick" if quick else "full") / name
@@ -59,13 +61,13 @@ def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
     result = out / "result.json"
     if result.is_file():
         done = json.loads(result.read_text())
-        had = done["args"]
-        evaluated_on = had.get("eval_liquid") or ("" if had["curriculum"] else had["liquid"])
-        if evaluated_on != EVAL_LIQUID:
-            where = evaluated_on or "Table 6.2's six liquids"
+        names = {f.name for f in fields(TrainArgs)}
+        had = TrainArgs(**{k: v for k, v in done["args"].items() if k in names})
+        if had.eval_liquids() != (EVAL_LIQUID,):
             raise InvalidParameterError(
-                f"ablation: the run in {str(out)!r} was evaluated on {where}, not "
-                f"{EVAL_LIQUID}; move it away to train the variant anew"
+                f"ablation: the run in {str(out)!r} was evaluated on "
+                f"{', '.join(had.eval_liquids())}, not {EVAL_LIQUID}; move it away to train "
+                "the variant anew"
             )
         if done["timesteps"] >= steps:
             print(f"ablation: {name} read back from {result}", file=sys.stderr)
