@@ -155,3 +155,17 @@ def test_a_novel_container_too_small_for_the_target_is_named_not_averaged() -> N
     spoon, mug = pouring.container_table(results, ("pd",), ("spoon", "mug"), 2)
     assert spoon == {"container": "spoon", "pd_g": None, "pd_ml": None, "note": small["too_small"]}
     assert mug == {"container": "mug", "pd_g": 3.0, "pd_ml": 3.0, "note": ""}
+
+
+def test_the_table_points_to_the_thesis_reward_runs(tmp_path) -> None:
+    """The training issue asks that the thesis-reward run be shown beside the shipped
+    policies: the line quotes the ablation's final evaluations, or says how to make them."""
+    assert "run `pourbench bench ablation`" in pouring.thesis_reward_line(tmp_path)
+    rows = [
+        {"variant": v, "steps": 200704, "final_eval_error_g": e, "random_eval_error_g": 86.26}
+        for v, e in (("ppo", 98.517), ("ppo_icm_curriculum", 86.263))
+    ]
+    (tmp_path / "ablation.json").write_text(json.dumps({"git_sha": "abc1234", "rows": rows}))
+    line = pouring.thesis_reward_line(tmp_path)
+    assert "`ppo` 98.52 g, `ppo_icm_curriculum` 86.26 g" in line
+    assert "at `abc1234`, 200704 steps a run" in line and "errs by 86.26 g" in line

@@ -111,6 +111,28 @@ def describe(name: str) -> str:
     return f"`{name}`: " + ", ".join(parts) + "."
 
 
+def thesis_reward_line(out: Path) -> str:
+    """One line on the thesis-reward runs beside the shipped policies: the final evaluations
+    of ``pourbench bench ablation`` from ``<out>/ablation.json``, or how to make them."""
+    path = out / "ablation.json"
+    if not path.is_file():
+        return (
+            "The thesis' reward alone (Algorithm 5, no final-error term, no residual): run "
+            "`pourbench bench ablation` for its rows."
+        )
+    report = json.loads(path.read_text())
+    rows = report["rows"]
+    scores = ", ".join(f"`{r['variant']}` {r['final_eval_error_g']:.2f} g" for r in rows)
+    low, high = min(r["steps"] for r in rows), max(r["steps"] for r in rows)
+    steps = f"{low}" if low == high else f"{low}–{high}"
+    return (
+        f"The thesis' reward alone (Algorithm 5, no final-error term, no residual; "
+        f"`pourbench bench ablation` at `{report['git_sha']}`, {steps} steps a "
+        f"run): {scores} on its 10 water pours at the end of training, where a random policy "
+        f"errs by {rows[0]['random_eval_error_g']:.2f} g ([ablation.md](ablation.md))."
+    )
+
+
 def episode(policy: str, liquid: str, container: str | None, target_g: float, seed: int) -> dict:
     """One pour of ``target_g`` of ``liquid`` by ``policy`` on Pour-v0: from the ``novel``
     set's ``container``, or (None) from the training set as the env draws it."""
@@ -296,6 +318,8 @@ def run(args: argparse.Namespace) -> int:
                 else ""
             ),
             *(f"- {describe(p)}" for p in names if p in SHIPPED),
+            "",
+            thesis_reward_line(Path(args.out)),
             "",
             "## Table 6.3's protocol",
             "",
