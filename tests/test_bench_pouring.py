@@ -111,6 +111,7 @@ def test_the_table_says_how_each_shipped_policy_was_trained(name) -> None:
     assert ("residual over the PD" in line) == bool(settings["residual"])
     assert ("per gram of final error" in line) == bool(settings["final_error_per_g"])
     assert f"curiosity {'on' if settings['icm'] else 'off'}" in line
+    assert f"on {settings['num_envs']} worlds" in line
 
 
 def test_the_training_line_names_the_start_and_the_reward(monkeypatch) -> None:
@@ -120,6 +121,7 @@ def test_the_training_line_names_the_start_and_the_reward(monkeypatch) -> None:
         "final_error_per_g": 0.02,
         "icm": True,
         "curriculum": False,
+        "num_envs": 32,
     }
     meta = {
         "algorithm": "recurrent_ppo",
@@ -133,9 +135,9 @@ def test_the_training_line_names_the_start_and_the_reward(monkeypatch) -> None:
 
     monkeypatch.setattr(loading, "policy_metadata", lambda name: meta)
     assert pouring.describe("x") == (
-        "`x`: recurrent_ppo (lstm), 1000 steps in 60 s, a residual over the PD baseline "
-        "(scale 0.2), reward Algorithm 5 + 0.02 per gram of final error, curiosity on, "
-        "curriculum off, checkpoint best_model.zip at 640 steps."
+        "`x`: recurrent_ppo (lstm), 1000 steps in 60 s on 32 worlds, a residual over the PD "
+        "baseline (scale 0.2), reward Algorithm 5 + 0.02 per gram of final error, curiosity "
+        "on, curriculum off, checkpoint best_model.zip at 640 steps."
     )
     monkeypatch.setitem(settings, "residual", 0.0)
     monkeypatch.setitem(settings, "final_error_per_g", 0.0)

@@ -79,7 +79,7 @@ def policies() -> tuple[str, ...]:
 
 def describe(name: str) -> str:
     """How the shipped policy ``name`` was trained, in one line of its metadata: algorithm,
-    steps, residual over the PD or warm start, gSDE, reward, curiosity, curriculum,
+    steps, worlds, residual over the PD or warm start, gSDE, reward, curiosity, curriculum,
     checkpoint."""
     from pourbench.agents.loading import policy_metadata
 
@@ -100,7 +100,7 @@ def describe(name: str) -> str:
     )
     parts = [
         f"{meta['algorithm']} ({meta['policy']})",
-        f"{meta['steps']} steps in {meta['wall_time_s']:.0f} s",
+        f"{meta['steps']} steps in {meta['wall_time_s']:.0f} s on {cfg['num_envs']} worlds",
         start,
         f"reward {reward}",
         f"curiosity {'on' if cfg['icm'] else 'off'}",
