@@ -253,8 +253,10 @@ def half_pour_times(
     device: str = "cpu",
     sleep_threshold: float = 0.0,
     dt: float = SolverConfig.dt,
+    max_deg: float = 135.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """All liquids poured with the same tilt, one world each in one solver, at step ``dt``.
+    """All liquids poured with the same tilt (:func:`tilt_schedule`, stopping at ``max_deg``
+    degrees), one world each in one solver, at step ``dt``.
 
     Returns:
         Time (s) at which half the liquid had left the source cup (interpolated within the
@@ -268,7 +270,7 @@ def half_pour_times(
     t_half = np.full(n, np.inf)
     prev_t, prev_left = 0.0, total.copy()
     while s.time < seconds:
-        scene.set_tilt(tilt_schedule(s.time))
+        scene.set_tilt(tilt_schedule(s.time, max_deg=max_deg))
         scene.step()
         left = np.array([scene.metrics(w).inside_g[0] for w in range(n)])
         crossed = np.isinf(t_half) & (left <= total / 2)
