@@ -284,12 +284,16 @@ def test_viscous_liquids_pour_in_order(sleep: float) -> None:
 
 
 @pytest.mark.slow
-def test_held_level_honey_pours_at_least_three_times_slower_than_water() -> None:
-    """The same tilt stopped at 90°: past horizontal a cup empties by its shape whatever the
-    viscosity, held level the flow over the lip is the liquid's own, and honey (10 Pa·s)
-    takes at least three times as long as water to pour half its 200 g (docs/viscosity.md)."""
-    t_half, _ = half_pour_times(("water", "honey"), seconds=10.0, max_deg=90.0)
-    assert np.isfinite(t_half[0]) and t_half[1] >= 3.0 * t_half[0], t_half
+def test_held_level_the_viscosity_sets_honeys_pour() -> None:
+    """The same tilt stopped at 90° instead of 135°: past horizontal a cup empties by its
+    shape whatever the viscosity, held level the flow over the lip is the liquid's own, so
+    honey (10 Pa·s) falls further behind water. How far depends on the resolution
+    (docs/viscosity.md), so only the direction is checked."""
+    liquids = ("water", "honey")
+    dumped, _ = half_pour_times(liquids, seconds=10.0)
+    level, _ = half_pour_times(liquids, seconds=10.0, max_deg=90.0)
+    assert np.all(np.isfinite(level)), level
+    assert level[1] / level[0] > dumped[1] / dumped[0], (dumped, level)
 
 
 @pytest.mark.xfail(
