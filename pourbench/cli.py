@@ -35,9 +35,21 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(args)
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from pourbench.agents.sweep import run
+
+    return run(args)
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     suites = BENCH_SUITES if args.suite == "all" else (args.suite,)
     modules = [importlib.import_module(f"pourbench.bench.{suite}") for suite in suites]
+    if args.ray is not None:
+        if not all(getattr(m, "HAS_RAY", False) for m in modules):
+            raise ValueError(f"--ray: bench {args.suite} has no Ray path; pouring and transfer do")
+        from pourbench.bench._jobs import import_ray
+
+        import_ray()  # before any work: says how to install it
     if args.device == "cuda":
         from pourbench.fluids.solver import cuda_available
 
@@ -176,6 +188,16 @@ def build_parser() -> argparse.ArgumentParser:
         help="auto: the CPU, plus CUDA when present; cuda: the CUDA rows alone (and the fluid "
         "checks on CUDA), written to leaderboard/<suite>_cuda.*",
     )
+    bench.add_argument(
+        "--ray",
+        nargs="?",
+        const="local",
+        default=None,
+        metavar="ADDRESS",
+        help="pouring, transfer: spread the episodes over Ray: a local Ray on this machine's "
+        "cores, or the cluster at ADDRESS (auto: the one `ray start` began here); the same "
+        "tables as without it (docs/ray.md)",
+    )
     bench.set_defaults(func=_cmd_bench)
 
     ev = sub.add_parser(
@@ -205,6 +227,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     train_arguments(tr)
     tr.set_defaults(func=_cmd_train)
+
+    sweep = sub.add_parser(
+        "sweep",
+        help="a grid or random search of `pourbench train` runs on Ray Tune (docs/ray.md)",
+        **defaults,
+    )
+    from pourbench.agents.sweep import add_arguments as sweep_arguments
+
+    sweep_arguments(sweep)
+    sweep.set_defaults(func=_cmd_sweep)
 
     liquids = sub.add_parser("liquids", help="list the shipped liquid profiles")
     liquids.set_defaults(func=_cmd_liquids)

@@ -11,6 +11,7 @@ import pytest
 from pourbench.agents.loading import policy_metadata
 from pourbench.argtypes import shipped_policies
 from pourbench.bench import pouring
+from pourbench.bench._jobs import job_key
 
 
 def _result(error_g: float, success: bool = True, density: float = 1.0) -> dict:
@@ -54,7 +55,7 @@ def test_a_stopped_run_resumes_from_its_log(tmp_path, monkeypatch) -> None:
     log = tmp_path / "episodes.jsonl"
     sha = pouring.git_sha()
     jobs = [("pd", "water", None, 50.0, s) for s in range(3)]
-    log.write_text(json.dumps({"key": pouring._key(sha, jobs[0]), "result": _result(1.5)}) + "\n")
+    log.write_text(json.dumps({"key": job_key(sha, jobs[0]), "result": _result(1.5)}) + "\n")
     ran = []
 
     def fake_episode(*job):
@@ -86,6 +87,27 @@ def test_episodes_give_the_same_numbers_in_one_process_or_two(tmp_path) -> None:
         a.pop("wall_s"), b.pop("wall_s")
         assert a == b, job
     assert here[jobs[0]]["error_g"] <= 10.0 and here[jobs[1]]["error_g"] == 50.0
+
+
+def test_a_local_ray_gives_the_local_runs_numbers(tmp_path) -> None:
+    """The same episodes as Ray tasks on a local Ray of 2 CPUs give what they give in this
+    process, so a table made with ``--ray`` is the local run's."""
+    import ray
+
+    jobs = [("pd", "water", None, 50.0, 0), ("random", "water", None, 50.0, 0)]
+    here = pouring.run_episodes(jobs, tmp_path / "one.jsonl", "sha", workers=1)
+    ray.init(num_cpus=2, include_dashboard=False)
+    try:
+        spread = pouring.run_episodes(jobs, tmp_path / "ray.jsonl", "sha", 1, "local")
+    finally:
+        ray.shutdown()
+    for job in jobs:
+        a, b = dict(here[job]), dict(spread[job])
+        a.pop("wall_s"), b.pop("wall_s")
+        assert a == b, job
+    rows = [pouring.liquid_table(r, ("pd", "random"), ("water",), (50.0,), 1)
+            for r in (here, spread)]  # fmt: skip
+    assert rows[0] == rows[1]
 
 
 @pytest.mark.slow

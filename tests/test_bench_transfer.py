@@ -8,6 +8,7 @@ import json
 import pytest
 
 from pourbench.bench import transfer
+from pourbench.bench._jobs import job_key
 
 
 def test_the_table_sets_each_robot_beside_pour_v0_and_the_thesis() -> None:
@@ -34,11 +35,11 @@ def test_a_stopped_run_resumes_from_its_log(tmp_path, monkeypatch) -> None:
     sha = transfer.git_sha()
     first = ("pour", "water", 50.0, 0)
     log.write_text(
-        json.dumps({"key": transfer._key(sha, "pd", *first), "result": {"error_g": 1.5}}) + "\n"
+        json.dumps({"key": job_key(sha, ("pd", *first)), "result": {"error_g": 1.5}}) + "\n"
     )
     ran = []
 
-    def fake_episode(env, liquid, target, seed, policy):
+    def fake_episode(policy, env, liquid, target, seed):
         ran.append((env, liquid, target, seed))
         return {"error_g": 2.0}
 

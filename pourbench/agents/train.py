@@ -33,6 +33,7 @@ import sys
 import time
 import typing
 import warnings
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -428,10 +429,18 @@ def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, Any]:
     return out
 
 
-def train(args: TrainArgs, command: str | None = None) -> dict:
+def train(
+    args: TrainArgs,
+    command: str | None = None,
+    report: Callable[[dict[str, Any], Path], None] | None = None,
+) -> dict:
     """Train until the budget is spent, write the plot, evaluate against a random policy;
     the result (also written to ``<out>/result.json``). ``command`` is recorded as the
-    session's command line (None: this process's ``pourbench …`` arguments)."""
+    session's command line (None: this process's ``pourbench …`` arguments). ``report``
+    is called with each periodic evaluation's metrics (``timesteps``, ``mean_abs_error_g``,
+    ``success_rate``, ``train_s``) and the run's folder once the checkpoint beside them is
+    written, and with the final evaluation's (``finished`` True) at the end: a sweep's trial
+    passes them to Ray Tune (:mod:`pourbench.agents.sweep`)."""
     from pourbench.envs.core import known_liquid
     from pourbench.outputs import OutputPathError, check_output_folder, write_text_atomic
 
@@ -577,6 +586,22 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
                 return steps / args.budget_steps
             return spent_s() / float(args.budget_s)  # type: ignore[arg-type]
 
+        def metrics(result: EvalResult, **more: Any) -> dict[str, Any]:
+            return {
+                "timesteps": int(model.num_timesteps),
+                "mean_abs_error_g": result.mean_abs_error_g,
+                "success_rate": result.success_rate,
+                "train_s": spent_s(),
+                **more,
+            }
+
+        def evaluate_and_report() -> EvalResult:
+            result = evaluate_now()
+            if report is not None:
+                checkpoint()
+                report(metrics(result, finished=False), out)
+            return result
+
         callbacks: list[Any] = [
             PourStatsCallback(icm),
             BudgetCallback(left_s, args.checkpoint_s, checkpoint),
@@ -584,7 +609,7 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         if args.curriculum:
             callbacks.append(CurriculumCallback(progress, verbose=1))
         if args.eval_every_steps:
-            callbacks.append(EvalCallback(args.eval_every_steps, evaluate_now))
+            callbacks.append(EvalCallback(args.eval_every_steps, evaluate_and_report))
         # SB3's progress bar is tqdm.rich, which warns that it is experimental
         warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)
         model.learn(
@@ -622,6 +647,10 @@ def train(args: TrainArgs, command: str | None = None) -> dict:
         "provenance": stamp,
     }
     write_text_atomic(out / "result.json", json.dumps(result, indent=2) + "\n")
+    if report is not None:
+        pd_g, random_g = pd.mean_abs_error_g, rnd.mean_abs_error_g
+        report(metrics(final, pd_mean_abs_error_g=pd_g, random_mean_abs_error_g=random_g,
+                       finished=True), out)  # fmt: skip
     return result
 
 

@@ -13,7 +13,8 @@ same policies, in grams and millilitres, beside the thesis' PourNet range for wa
 
 Each episode is one job: a fresh single env reset with its seed, so its result depends only
 on (policy, liquid, container, target, seed), not on the order or the process it runs in.
-Jobs are spread over one process per core; each result is appended as it finishes to
+Jobs are spread over one process per core, or over a Ray cluster with ``--ray``
+(:mod:`pourbench.bench._jobs`); each result is appended as it finishes to
 ``runs/pouring/episodes.jsonl``, keyed by the git SHA at the start, so a run that stops
 resumes where it was.
 """
@@ -23,18 +24,18 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from pourbench.argtypes import shipped_policies
+from pourbench.bench._jobs import run_jobs
 from pourbench.bench._report import git_sha, markdown_table, write_report
+
+HAS_RAY = True
+"""``--ray`` spreads the episodes over Ray workers (:mod:`pourbench.bench._jobs`)."""
 
 TARGETS_G = (50.0, 100.0, 150.0, 200.0)
 POURS = 10
@@ -168,47 +169,13 @@ def episode(policy: str, liquid: str, container: str | None, target_g: float, se
     }
 
 
-def _run(job: Job) -> tuple[Job, dict]:
-    return job, episode(*job)
-
-
-def _key(sha: str, job: Job) -> str:
-    return json.dumps([sha, *job])
-
-
-def run_episodes(jobs: list[Job], log: Path, sha: str, workers: int) -> dict[Job, dict]:
-    """Every job's result: from ``log`` where the code at git SHA ``sha`` ran it already,
-    otherwise run over ``workers`` processes (with a progress bar) and appended to it."""
-    done: dict[str, dict] = {}
-    if log.is_file():
-        for line in log.read_text().splitlines():
-            if line.strip():
-                entry = json.loads(line)
-                done[entry["key"]] = entry["result"]
-    results = {j: done[_key(sha, j)] for j in jobs if _key(sha, j) in done}
-    todo = [j for j in jobs if j not in results]
-    if results:
-        print(f"pouring: {len(results)} episodes from {log}", file=sys.stderr)
-    log.parent.mkdir(parents=True, exist_ok=True)
-    bar = tqdm(total=len(todo), desc="pouring episodes", file=sys.stderr)
-    with log.open("a") as f:
-
-        def keep(job: Job, result: dict) -> None:
-            results[job] = result
-            f.write(json.dumps({"key": _key(sha, job), "result": result}) + "\n")
-            f.flush()
-            bar.update()
-
-        if workers <= 1 or len(todo) <= 1:
-            for job in todo:
-                keep(*_run(job))
-        else:
-            context = get_context("spawn")  # fresh interpreters: no forked Warp or torch state
-            with ProcessPoolExecutor(min(workers, len(todo)), mp_context=context) as pool:
-                for future in as_completed([pool.submit(_run, j) for j in todo]):
-                    keep(*future.result())
-    bar.close()
-    return results
+def run_episodes(
+    jobs: list[Job], log: Path, sha: str, workers: int, ray_address: str | None = None
+) -> dict[Job, dict]:
+    """Every job's :func:`episode`: from ``log`` where the code at git SHA ``sha`` ran it
+    already, otherwise over ``workers`` processes or on Ray (``ray_address``), appended to it
+    (:func:`pourbench.bench._jobs.run_jobs`)."""
+    return run_jobs(episode, jobs, log, sha, "pouring episodes", workers, ray_address)
 
 
 def _mean(results: dict[Job, dict], jobs: list[Job], key: str = "error_g") -> float:
@@ -301,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
         (p, "water", c, NOVEL_TARGET_G, s) for p in names for c in novel for s in range(novel_pours)
     ]
     log = LOG.with_name("episodes-quick.jsonl") if quick else LOG
-    results = run_episodes(jobs, log, sha, os.cpu_count() or 1)
+    results = run_episodes(jobs, log, sha, os.cpu_count() or 1, getattr(args, "ray", None))
     rows = liquid_table(results, names, liquids, targets, pours)
     crows = container_table(results, names, novel, novel_pours)
     columns = ["liquid", "target_g", "thesis_lstm_g", "thesis_fnn_g"]

@@ -7,28 +7,32 @@ on Pour-v0. The table gives, per liquid and target, the mean absolute error on e
 the thesis' real-robot error, and the gap: the robot's error less Pour-v0's.
 
 The policy is the shipped ``pournet-lstm`` once it exists, the PD baseline until then.
-Episodes are logged as they finish (``runs/transfer/episodes.jsonl``, keyed by the git SHA,
-the policy and the episode), so a run that stops resumes where it was.
+Episodes run one after another in this process, or on Ray workers with ``--ray``
+(:mod:`pourbench.bench._jobs`). They are logged as they finish
+(``runs/transfer/episodes.jsonl``, keyed by the git SHA, the policy and the episode), so a run
+that stops resumes where it was.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from pourbench.agents.loading import load_policy
 from pourbench.argtypes import shipped_policies
+from pourbench.bench._jobs import run_jobs
 from pourbench.bench._report import git_sha, markdown_table, write_report
 
 LIQUIDS = ("water", "milk", "cola", "orange juice", "rapeseed oil", "dish soap", "honey")
 """Table 6.4's liquids, in its column order."""
+
+HAS_RAY = True
+"""``--ray`` spreads the episodes over Ray workers (:mod:`pourbench.bench._jobs`)."""
 
 TARGETS_G = (50.0, 100.0, 150.0)
 POURS = 3
@@ -70,7 +74,7 @@ def policy_name() -> str:
     return SHIPPED if SHIPPED in shipped_policies() else "pd"
 
 
-def episode(env_name: str, liquid: str, target_g: float, seed: int, policy: str) -> dict:
+def episode(policy: str, env_name: str, liquid: str, target_g: float, seed: int) -> dict:
     """One pour of ``target_g`` of ``liquid`` by ``policy`` on ``env_name`` (:data:`ENVS`)."""
     from pourbench.agents.evaluate import pour_episode
 
@@ -98,21 +102,6 @@ def episode(env_name: str, liquid: str, target_g: float, seed: int, policy: str)
     }
 
 
-def _key(sha: str, policy: str, env: str, liquid: str, target: float, seed: int) -> str:
-    return json.dumps([sha, policy, env, liquid, target, seed])
-
-
-def _load_log(path: Path) -> dict[str, dict]:
-    if not path.is_file():
-        return {}
-    done = {}
-    for line in path.read_text().splitlines():
-        if line.strip():
-            entry = json.loads(line)
-            done[entry["key"]] = entry["result"]
-    return done
-
-
 def run_episodes(
     liquids: tuple[str, ...],
     targets: tuple[float, ...],
@@ -120,32 +109,20 @@ def run_episodes(
     policy: str,
     log: Path,
     sha: str,
+    ray_address: str | None = None,
 ) -> dict[tuple[str, str, float, int], dict]:
-    """Every (env, liquid, target, seed) episode, taken from ``log`` where the code at git SHA
-    ``sha`` and ``policy`` ran it already, run (with a progress bar) and appended to it
-    otherwise."""
-    done = _load_log(log)
+    """Every (env, liquid, target, seed) episode by ``policy``: taken from ``log`` where the
+    code at git SHA ``sha`` ran it already, otherwise run in this process or on Ray
+    (``ray_address``) and appended to it (:func:`pourbench.bench._jobs.run_jobs`)."""
     jobs = [
-        (env, liquid, target, seed)
+        (policy, env, liquid, target, seed)
         for liquid in liquids
         for target in targets
         for seed in range(pours)
         for env in ENVS
     ]
-    results = {}
-    todo = [j for j in jobs if _key(sha, policy, *j) not in done]
-    for j in jobs:
-        if j not in todo:
-            results[j] = done[_key(sha, policy, *j)]
-    if len(todo) < len(jobs):
-        print(f"transfer: {len(jobs) - len(todo)} episodes from {log}", file=sys.stderr)
-    log.parent.mkdir(parents=True, exist_ok=True)
-    with log.open("a") as f:
-        for j in tqdm(todo, desc="transfer episodes", file=sys.stderr):
-            results[j] = episode(*j, policy)
-            f.write(json.dumps({"key": _key(sha, policy, *j), "result": results[j]}) + "\n")
-            f.flush()
-    return results
+    results = run_jobs(episode, jobs, log, sha, "transfer episodes", ray_address=ray_address)
+    return {job[1:]: result for job, result in results.items()}
 
 
 def _flags(eps: list[dict]) -> str:
@@ -193,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     policy = policy_name()
     sha = git_sha()
     log = LOG.with_name("episodes-quick.jsonl") if quick else LOG
-    results = run_episodes(liquids, targets, pours, policy, log, sha)
+    results = run_episodes(liquids, targets, pours, policy, log, sha, getattr(args, "ray", None))
     rows = table(results, liquids, targets, pours)
     mean_of = ("thesis_movo_g", "pour_v0_g", "movo_g", "panda_g")
     means = {c: float(np.mean([r[c] for r in rows])) for c in mean_of}
