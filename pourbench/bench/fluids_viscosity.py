@@ -16,7 +16,13 @@ from pourbench.fluids.falling_ball import CYLINDER_RADIUS, MARBLE_RADIUS
 from pourbench.fluids.params import liquid_profile
 from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
 from pourbench.fluids.solver import SolverConfig
-from pourbench.fluids.validation import SETTLING_VISCOSITIES, falling_ball, newtonian
+from pourbench.fluids.validation import (
+    SETTLING_RANGE_PA_S,
+    SETTLING_TOLERANCE,
+    SETTLING_VISCOSITIES,
+    falling_ball,
+    newtonian,
+)
 
 MARBLE_ORDER = (
     "water",
@@ -28,16 +34,6 @@ MARBLE_ORDER = (
     "honey",
 )
 """Table 3.4's liquids, fastest marble first."""
-
-SETTLING_TOLERANCE = 0.30
-"""How near the closed form a settling sphere's terminal speed must be, over
-:data:`SETTLING_RANGE_PA_S`."""
-
-SETTLING_RANGE_PA_S = (0.5, 50.0)
-"""Pa·s: the viscosities over which the settling sphere is held to the closed form. Below
-0.5 Pa·s the particle method's own viscosity (about 0.15 Pa·s at 5 mm) and the settled
-packing's resistance of about 10 Pa (docs/viscosity.md) set the sphere's speed, not the
-liquid's viscosity."""
 
 SETTLING_COLUMNS = [
     "viscosity_pa_s",
