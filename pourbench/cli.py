@@ -44,7 +44,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     suites = BENCH_SUITES if args.suite == "all" else (args.suite,)
     modules = [importlib.import_module(f"pourbench.bench.{suite}") for suite in suites]
-    if args.ray is not None:
+    if getattr(args, "ray", None) is not None:
         if not all(getattr(m, "HAS_RAY", False) for m in modules):
             raise ValueError(f"--ray: bench {args.suite} has no Ray path; pouring and transfer do")
         from pourbench.bench._jobs import import_ray
