@@ -11,7 +11,7 @@ import pytest
 from pourbench.agents.loading import policy_metadata
 from pourbench.argtypes import shipped_policies
 from pourbench.bench import pouring
-from pourbench.bench._jobs import job_key
+from pourbench.bench._jobs import job_key, run_jobs
 
 
 def _result(error_g: float, success: bool = True, density: float = 1.0) -> dict:
@@ -90,17 +90,24 @@ def test_episodes_give_the_same_numbers_in_one_process_or_two(tmp_path) -> None:
 
 
 def test_a_local_ray_gives_the_local_runs_numbers(tmp_path) -> None:
-    """The same episodes as Ray tasks on a local Ray of 2 CPUs give what they give in this
-    process, so a table made with ``--ray`` is the local run's."""
+    """The same episodes as Ray tasks on a local Ray of 2 CPUs (other processes) give what
+    they give in this process, so a table made with ``--ray`` is the local run's."""
+    import os
+
     import ray
 
+    def traced(*job):  # sent to the Ray workers by value; pouring.episode by reference
+        return {"pid": os.getpid(), **pouring.episode(*job)}
+
     jobs = [("pd", "water", None, 50.0, 0), ("random", "water", None, 50.0, 0)]
-    here = pouring.run_episodes(jobs, tmp_path / "one.jsonl", "sha", workers=1)
+    here = run_jobs(traced, jobs, tmp_path / "one.jsonl", "sha", "here")
     ray.init(num_cpus=2, include_dashboard=False)
     try:
-        spread = pouring.run_episodes(jobs, tmp_path / "ray.jsonl", "sha", 1, "local")
+        spread = run_jobs(traced, jobs, tmp_path / "ray.jsonl", "sha", "ray", ray_address="local")
     finally:
         ray.shutdown()
+    assert {here[j].pop("pid") for j in jobs} == {os.getpid()}
+    assert os.getpid() not in {spread[j].pop("pid") for j in jobs}
     for job in jobs:
         a, b = dict(here[job]), dict(spread[job])
         a.pop("wall_s"), b.pop("wall_s")

@@ -450,9 +450,8 @@ SETTLING_VISCOSITIES = (0.05, 0.5, 5.0, 50.0)
 
 SETTLING_RANGE_PA_S = (0.5, 50.0)
 """Pa·s: the viscosities over which the settling sphere is held to the closed form. Below
-0.5 Pa·s the particle method's own viscosity (about 0.15 Pa·s at 5 mm) and the settled
-packing's resistance of about 10 Pa (docs/viscosity.md) set the sphere's speed, not the
-liquid's viscosity."""
+them the particle method's own viscosity and the settled packing's resistance set the
+sphere's speed, not the liquid's viscosity (docs/viscosity.md)."""
 
 SETTLING_TOLERANCE = 0.30
 """How near the closed form the settling sphere's terminal speed must be over
