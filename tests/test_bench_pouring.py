@@ -50,22 +50,25 @@ def test_the_tables_set_each_policy_beside_the_thesis() -> None:
 
 
 def test_a_stopped_run_resumes_from_its_log(tmp_path, monkeypatch) -> None:
-    """Jobs logged under this SHA come from the log; only the rest run, each appended as it
-    finishes; another commit runs them all again."""
+    """Cells logged under this SHA come from the log; only the rest run, each appended as it
+    finishes; another commit runs them all again. The results come back by pour."""
     log = tmp_path / "episodes.jsonl"
     sha = pouring.git_sha()
-    jobs = [("pd", "water", None, 50.0, s) for s in range(3)]
-    log.write_text(json.dumps({"key": job_key(sha, jobs[0]), "result": _result(1.5)}) + "\n")
+    jobs = [("pd", "water", None, target, 2) for target in (50.0, 100.0, 150.0)]
+    logged = {"pours": [_result(1.5), _result(2.5)]}
+    log.write_text(json.dumps({"key": job_key(sha, jobs[0]), "result": logged}) + "\n")
     ran = []
 
-    def fake_episode(*job):
+    def fake_pours(*job):
         ran.append(job)
-        return _result(2.0)
+        return {"pours": [_result(2.0)] * job[4]}
 
-    monkeypatch.setattr(pouring, "episode", fake_episode)
+    monkeypatch.setattr(pouring, "pours", fake_pours)
     results = pouring.run_episodes(jobs, log, sha, workers=1)
     assert ran == jobs[1:]
-    assert results[jobs[0]]["error_g"] == 1.5 and results[jobs[2]]["error_g"] == 2.0
+    assert len(results) == 6
+    assert results[("pd", "water", None, 50.0, 1)]["error_g"] == 2.5
+    assert results[("pd", "water", None, 150.0, 0)]["error_g"] == 2.0
     assert len(log.read_text().splitlines()) == 3
     ran.clear()
     pouring.run_episodes(jobs, log, sha, workers=1)
@@ -75,31 +78,36 @@ def test_a_stopped_run_resumes_from_its_log(tmp_path, monkeypatch) -> None:
 
 
 @pytest.mark.slow
-def test_episodes_give_the_same_numbers_in_one_process_or_two(tmp_path) -> None:
-    """Each episode is a fresh env reset with its seed: spread over two processes, the PD's
-    and the random policy's episodes give what they give in this one."""
-    jobs = [("pd", "water", None, 50.0, 0), ("random", "water", None, 50.0, 1),
-            ("pd", "honey", "mug", 50.0, 2)]  # fmt: skip
+def test_cells_give_the_same_numbers_in_one_process_or_two(tmp_path) -> None:
+    """A cell's pours follow one another in one env, each seeing the running average error
+    of those before it (its own included once it ends); each cell is a fresh env, so spread
+    over two processes the cells give what they give in this one."""
+    jobs = [("pd", "water", None, 50.0, 2), ("random", "water", None, 50.0, 1),
+            ("pd", "honey", "mug", 50.0, 1)]  # fmt: skip
     here = pouring.run_episodes(jobs, tmp_path / "one.jsonl", "sha", workers=1)
     spread = pouring.run_episodes(jobs, tmp_path / "two.jsonl", "sha", workers=2)
-    for job in jobs:
-        a, b = dict(here[job]), dict(spread[job])
+    assert here.keys() == spread.keys() and len(here) == 4
+    for pour in here:
+        a, b = dict(here[pour]), dict(spread[pour])
         a.pop("wall_s"), b.pop("wall_s")
-        assert a == b, job
-    assert here[jobs[0]]["error_g"] <= 10.0 and here[jobs[1]]["error_g"] == 50.0
+        assert a == b, pour
+    first, second = here[("pd", "water", None, 50.0, 0)], here[("pd", "water", None, 50.0, 1)]
+    assert first["average_error_g"] == pytest.approx(first["error_g"])
+    assert second["average_error_g"] == pytest.approx((first["error_g"] + second["error_g"]) / 2)
+    assert first["error_g"] <= 10.0 and here[("random", "water", None, 50.0, 0)]["error_g"] == 50.0
 
 
 def test_a_local_ray_gives_the_local_runs_numbers(tmp_path) -> None:
-    """The same episodes as Ray tasks on a local Ray of 2 CPUs (other processes) give what
+    """The same cells as Ray tasks on a local Ray of 2 CPUs (other processes) give what
     they give in this process, so a table made with ``--ray`` is the local run's."""
     import os
 
     import ray
 
-    def traced(*job):  # sent to the Ray workers by value; pouring.episode by reference
-        return {"pid": os.getpid(), **pouring.episode(*job)}
+    def traced(*job):  # sent to the Ray workers by value; pouring.pours by reference
+        return {"pid": os.getpid(), **pouring.pours(*job)}
 
-    jobs = [("pd", "water", None, 50.0, 0), ("random", "water", None, 50.0, 0)]
+    jobs = [("pd", "water", None, 50.0, 1), ("random", "water", None, 50.0, 1)]
     here = run_jobs(traced, jobs, tmp_path / "one.jsonl", "sha", "here")
     ray.init(num_cpus=2, include_dashboard=False)
     try:
@@ -109,12 +117,10 @@ def test_a_local_ray_gives_the_local_runs_numbers(tmp_path) -> None:
     assert {here[j].pop("pid") for j in jobs} == {os.getpid()}
     assert os.getpid() not in {spread[j].pop("pid") for j in jobs}
     for job in jobs:
-        a, b = dict(here[job]), dict(spread[job])
+        (a,), (b,) = here[job]["pours"], spread[job]["pours"]
+        a, b = dict(a), dict(b)
         a.pop("wall_s"), b.pop("wall_s")
         assert a == b, job
-    rows = [pouring.liquid_table(r, ("pd", "random"), ("water",), (50.0,), 1)
-            for r in (here, spread)]  # fmt: skip
-    assert rows[0] == rows[1]
 
 
 @pytest.mark.slow

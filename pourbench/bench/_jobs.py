@@ -1,8 +1,8 @@
 """Evaluation episodes as independent jobs, run once each and logged; shared by ``bench
 pouring`` and ``bench transfer``.
 
-A job is a tuple of plain values, and its result depends on nothing else: each episode
-resets a fresh env with its own seed. So a job may run anywhere (in this process, in one
+A job is a tuple of plain values, and its result depends on nothing else: it pours in a
+fresh env of its own, with seeds it names. So a job may run anywhere (in this process, in one
 process per core, or on Ray workers with ``--ray``) and the tables come out the same.
 Each result is appended as it finishes to a JSON-lines log, keyed by the git SHA at the
 start, so a run that stops resumes where it was.

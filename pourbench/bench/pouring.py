@@ -11,12 +11,14 @@ same policies, in grams and millilitres, beside the thesis' PourNet range for wa
 6.1, 3.8–8.66 ml). A container that cannot hold the target (the spoon) gets "–" and, in its
 ``note``, what it holds.
 
-Each episode is one job: a fresh single env reset with its seed, so its result depends only
-on (policy, liquid, container, target, seed), not on the order or the process it runs in.
-Jobs are spread over one process per core, or over a Ray cluster with ``--ray``
-(:mod:`pourbench.bench._jobs`); each result is appended as it finishes to
-``runs/pouring/episodes.jsonl``, keyed by the git SHA at the start, so a run that stops
-resumes where it was.
+A cell's pours run in a row in one env, seeds 0, 1, …, as the thesis poured each profile 10
+times: each pour's observation carries the running average error of the pours before it
+(observation 10), as in training, where a world's episodes follow one another. One job is one
+cell, (policy, liquid, container, target, pours), a fresh env of its own, so its result
+depends on nothing else: not on the order or the process it runs in. Jobs are spread over
+one process per core, or over a Ray cluster with ``--ray`` (:mod:`pourbench.bench._jobs`);
+each result is appended as it finishes to ``runs/pouring/episodes.jsonl``, keyed by the git
+SHA at the start, so a run that stops resumes where it was.
 """
 
 from __future__ import annotations
@@ -70,7 +72,8 @@ SHIPPED = ("pournet-lstm", "pournet-mlp")
 BASELINES = ("pd", "random")
 LOG = Path("runs") / "pouring" / "episodes.jsonl"
 
-Job = tuple[str, str, str | None, float, int]  # policy, liquid, container, target, seed
+Job = tuple[str, str, str | None, float, int]  # policy, liquid, container, target, pours
+Pour = tuple[str, str, str | None, float, int]  # policy, liquid, container, target, seed
 
 
 def policies() -> tuple[str, ...]:
@@ -134,9 +137,11 @@ def thesis_reward_line(out: Path) -> str:
     )
 
 
-def episode(policy: str, liquid: str, container: str | None, target_g: float, seed: int) -> dict:
-    """One pour of ``target_g`` of ``liquid`` by ``policy`` on Pour-v0: from the ``novel``
-    set's ``container``, or (None) from the training set as the env draws it."""
+def pours(policy: str, liquid: str, container: str | None, target_g: float, count: int) -> dict:
+    """``count`` pours of ``target_g`` of ``liquid`` by ``policy`` in a row on one Pour-v0
+    (seeds 0, 1, …): from the ``novel`` set's ``container``, or (None) from the training set
+    as the env draws it. ``{"pours": [...]}``, one outcome per pour; each is
+    ``{"too_small": reason}`` where the container cannot hold the target."""
     from pourbench.agents.evaluate import pour_episode
     from pourbench.agents.loading import load_policy
     from pourbench.envs.core import known_liquid
@@ -144,41 +149,53 @@ def episode(policy: str, liquid: str, container: str | None, target_g: float, se
     from pourbench.errors import CapacityError
 
     env = PourEnv(liquid=liquid, container_set="training" if container is None else "novel")
-    act = load_policy(policy, seed)
-    start = time.perf_counter()
+    act = load_policy(policy, 0)
+    density = known_liquid(liquid).density / 1000.0  # g/ml
     options: dict[str, Any] = {"target_g": target_g}
     if container is not None:
         options["container"] = container
+    outcomes: list[dict] = []
     try:
-        info, steps = pour_episode(env, act, seed, options)
+        for seed in range(count):
+            start = time.perf_counter()
+            info, steps = pour_episode(env, act, seed, options)
+            outcomes.append(
+                {
+                    "error_g": float(info["error_g"]),
+                    "error_ml": float(info["error_g"] / density),
+                    "spilled_g": float(info["spilled_g"]),
+                    "success": bool(info["is_success"]),
+                    "collided": bool(info["collided"]),
+                    "sim_diverged": bool(info["sim_diverged"]),
+                    "container": str(info["container"]),
+                    "average_error_g": float(info["average_error_g"]),
+                    "steps": steps,
+                    "wall_s": time.perf_counter() - start,
+                }
+            )
     except CapacityError as exc:  # a novel container too small for the target
-        return {"too_small": str(exc)}
+        outcomes = [{"too_small": str(exc)}] * count
     finally:
         env.close()
-    density = known_liquid(liquid).density / 1000.0  # g/ml
-    return {
-        "error_g": float(info["error_g"]),
-        "error_ml": float(info["error_g"] / density),
-        "spilled_g": float(info["spilled_g"]),
-        "success": bool(info["is_success"]),
-        "collided": bool(info["collided"]),
-        "sim_diverged": bool(info["sim_diverged"]),
-        "container": str(info["container"]),
-        "steps": steps,
-        "wall_s": time.perf_counter() - start,
-    }
+    return {"pours": outcomes}
 
 
 def run_episodes(
     jobs: list[Job], log: Path, sha: str, workers: int, ray_address: str | None = None
-) -> dict[Job, dict]:
-    """Every job's :func:`episode`: from ``log`` where the code at git SHA ``sha`` ran it
-    already, otherwise over ``workers`` processes or on Ray (``ray_address``), appended to it
+) -> dict[Pour, dict]:
+    """Every job's :func:`pours`, by pour (its job's first four values and its seed): from
+    ``log`` where the code at git SHA ``sha`` ran it already, otherwise over ``workers``
+    processes or on Ray (``ray_address``), appended to it
     (:func:`pourbench.bench._jobs.run_jobs`)."""
-    return run_jobs(episode, jobs, log, sha, "pouring episodes", workers, ray_address)
+    results = run_jobs(pours, jobs, log, sha, "pouring cells", workers, ray_address)
+    return {
+        (*job[:4], seed): outcome
+        for job, result in results.items()
+        for seed, outcome in enumerate(result["pours"])
+    }
 
 
-def _mean(results: dict[Job, dict], jobs: list[Job], key: str = "error_g") -> float:
+def _mean(results: dict[Pour, dict], jobs: list[Pour], key: str = "error_g") -> float:
     return float(np.mean([results[j][key] for j in jobs]))
 
 
@@ -189,7 +206,7 @@ def _flags(eps: list[dict]) -> str:
 
 
 def liquid_table(
-    results: dict[Job, dict],
+    results: dict[Pour, dict],
     names: tuple[str, ...],
     liquids: tuple[str, ...],
     targets: tuple[float, ...],
@@ -217,7 +234,7 @@ def liquid_table(
 
 
 def container_table(
-    results: dict[Job, dict], names: tuple[str, ...], containers: tuple[str, ...], pours: int
+    results: dict[Pour, dict], names: tuple[str, ...], containers: tuple[str, ...], pours: int
 ) -> list[dict[str, Any]]:
     """One row per novel container: each policy's mean absolute error over the pours of
     50 g of water, g and ml; None, and the reason in ``note``, for a container that cannot
@@ -258,15 +275,9 @@ def run(args: argparse.Namespace) -> int:
     names = policies()
     sha = git_sha()
     jobs: list[Job] = [
-        (p, liquid, None, target, s)
-        for p in names
-        for liquid in liquids
-        for target in targets
-        for s in range(pours)
+        (p, liquid, None, target, pours) for p in names for liquid in liquids for target in targets
     ]
-    jobs += [
-        (p, "water", c, NOVEL_TARGET_G, s) for p in names for c in novel for s in range(novel_pours)
-    ]
+    jobs += [(p, "water", c, NOVEL_TARGET_G, novel_pours) for p in names for c in novel]
     log = LOG.with_name("episodes-quick.jsonl") if quick else LOG
     results = run_episodes(jobs, log, sha, os.cpu_count() or 1, getattr(args, "ray", None))
     rows = liquid_table(results, names, liquids, targets, pours)
@@ -291,11 +302,13 @@ def run(args: argparse.Namespace) -> int:
             "## Table 6.3's protocol",
             "",
             f"Table 6.2's liquids × {', '.join(f'{t:g}' for t in targets)} g × {pours} pours "
-            "(seeds 0…) on `pourbench/Pour-v0` with its defaults (the training set's pouring "
-            "container, 8 mm particles). Columns: `<policy>_g`, the mean absolute error over "
-            "the pours, g; `<policy>_success`, the share that ended with an error of at most "
-            "10 g; `thesis_*_g`, Table 6.3's PourNet in FleX (– where ketchup's large targets "
-            "were never reached); `flags`, episodes ended by a collision or a diverged liquid.",
+            "in a row (seeds 0…, one env per cell, so each pour sees the running average error "
+            "of those before it) on `pourbench/Pour-v0` with its defaults (the training set's "
+            "pouring container, 8 mm particles). Columns: `<policy>_g`, the mean absolute "
+            "error over the pours, g; `<policy>_success`, the share that ended with an error "
+            "of at most 10 g; `thesis_*_g`, Table 6.3's PourNet in FleX (– where ketchup's "
+            "large targets were never reached); `flags`, episodes ended by a collision or a "
+            "diverged liquid.",
             "",
             markdown_table(rows, columns),
             "",
@@ -306,9 +319,9 @@ def run(args: argparse.Namespace) -> int:
             "## Novel containers (Figure 6.13 / Table 6.1)",
             "",
             f"Each container of the `novel` set × water {NOVEL_TARGET_G:g} g × {novel_pours} "
-            "pour(s) (seeds 0…). Mean absolute error, g and ml; the thesis' PourNet ranged over "
-            f"{THESIS_WATER_ML[0]}–{THESIS_WATER_ML[1]} ml on its real containers (Table 6.1), "
-            "with the two bottles as outliers.",
+            "pour(s) in a row (seeds 0…). Mean absolute error, g and ml; the thesis' PourNet "
+            f"ranged over {THESIS_WATER_ML[0]}–{THESIS_WATER_ML[1]} ml on its real containers "
+            "(Table 6.1), with the two bottles as outliers.",
             "",
             markdown_table(crows, ccolumns),
         ]
