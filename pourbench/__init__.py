@@ -42,6 +42,12 @@ def _headless_gl_default() -> None:
 _headless_gl_default()
 
 
+POUR_ID = "pourbench/Pour-v0"
+ROBOT_POUR_ID = "pourbench/PourRobot-v0"
+ENV_IDS: tuple[str, ...] = (POUR_ID, ROBOT_POUR_ID)
+"""The Gymnasium ids :func:`register_envs` registers."""
+
+
 def register_envs() -> None:
     """Register the Gymnasium ids ``pourbench/...`` (the ``gymnasium.envs`` entry point).
 
@@ -50,9 +56,9 @@ def register_envs() -> None:
     """
     from gymnasium.envs.registration import register, registry
 
-    if "pourbench/Pour-v0" not in registry:
+    if POUR_ID not in registry:
         register(
-            id="pourbench/Pour-v0",
+            id=POUR_ID,
             entry_point="pourbench.envs.pour:PourEnv",
             vector_entry_point="pourbench.envs.vector:PourVectorEnv",
             # Gymnasium 1.4's passive checker never records the data of a first reset that
@@ -60,9 +66,9 @@ def register_envs() -> None:
             # with a TypeError. The environment passes Gymnasium's full check_env in the tests.
             disable_env_checker=True,
         )
-    if "pourbench/PourRobot-v0" not in registry:
+    if ROBOT_POUR_ID not in registry:
         register(
-            id="pourbench/PourRobot-v0",
+            id=ROBOT_POUR_ID,
             entry_point="pourbench.envs.robot_pour:RobotPourEnv",
             disable_env_checker=True,  # as Pour-v0 (a rejected first reset)
         )
@@ -73,4 +79,4 @@ try:  # register on import when Gymnasium is installed
 except ImportError:  # pragma: no cover - gymnasium is a core dependency
     pass
 
-__all__ = ["__version__", "register_envs"]
+__all__ = ["ENV_IDS", "POUR_ID", "ROBOT_POUR_ID", "__version__", "register_envs"]

@@ -8,7 +8,6 @@ carry gravity compensation, so the robot stands still at ``home`` with zero cont
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -27,9 +26,7 @@ from pourbench.containers import (
 from pourbench.errors import (
     InvalidParameterError,
     UnknownNameError,
-    check_array,
     check_positive,
-    check_quat,
 )
 
 ROBOTS: tuple[str, ...] = ("movo", "panda")
@@ -316,137 +313,6 @@ def build_pour_scene(
         )
         b.gravcomp = 1.0
     return PourScene(spec, spec.compile(), robot, pour, recv, *scale, False)
-
-
-# ------------------------------------------------------------------------------ planning scenes
-
-
-@dataclass(frozen=True)
-class ObstacleGeom:
-    """An obstacle of a planning scene, on its own mocap body.
-
-    Attributes:
-        kind: "sphere", "box" or "capsule".
-        size: MuJoCo geom size (sphere: radius; box: half sizes; capsule: radius, half length), m.
-        pos: initial position, m.
-        quat: initial orientation (w, x, y, z).
-    """
-
-    kind: str
-    size: tuple[float, ...]
-    pos: tuple[float, float, float]
-    quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
-
-
-_OBSTACLE_TYPES = {
-    "sphere": mujoco.mjtGeom.mjGEOM_SPHERE,
-    "box": mujoco.mjtGeom.mjGEOM_BOX,
-    "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
-}
-_OBSTACLE_SIZES = {"sphere": 1, "box": 3, "capsule": 2}  # sizes a kind needs (of MuJoCo's 3)
-
-
-def _check_pos_quat(
-    what: str, pos: object, quat: object | None
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """``pos`` as 3 finite numbers, ``quat`` (unless None) as a finite non-zero quaternion
-    (MuJoCo normalises it)."""
-    p = check_array(f"{what}pos", pos, (3,))
-    return p, None if quat is None else check_quat(f"{what}quat", quat)
-
-
-def _check_obstacle(i: int, ob: object) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """An obstacle's (sizes, pos, quat), checked."""
-    if not isinstance(ob, ObstacleGeom):
-        raise InvalidParameterError(f"obstacle {i} must be an ObstacleGeom, got {ob!r}")
-    if not isinstance(ob.kind, str) or ob.kind not in _OBSTACLE_TYPES:
-        raise InvalidParameterError(
-            f"obstacle {i}: kind {ob.kind!r} not one of {sorted(_OBSTACLE_TYPES)}"
-        )
-    need = _OBSTACLE_SIZES[ob.kind]
-    if not isinstance(ob.size, np.ndarray) and (
-        not isinstance(ob.size, Iterable)
-        or isinstance(ob.size, str)
-        or any(isinstance(v, bool | str | bytes) for v in ob.size)
-    ):
-        raise InvalidParameterError(
-            f"obstacle {i}: the sizes of a {ob.kind} must be a list of numbers, got {ob.size!r}"
-        )
-    size = check_array(f"obstacle {i}: size", ob.size, (None,))
-    if not need <= size.size <= 3:
-        raise InvalidParameterError(
-            f"obstacle {i}: a {ob.kind} takes {'3' if need == 3 else f'{need} to 3'} sizes, "
-            f"got {size.size}: {ob.size!r}"
-        )
-    if not np.all(size > 0):
-        raise InvalidParameterError(f"obstacle {i}: sizes must be > 0, got {ob.size!r}")
-    return (size, *_check_pos_quat(f"obstacle {i}: ", ob.pos, ob.quat))
-
-
-def build_planning_scene(
-    robot: str,
-    obstacles: Sequence[ObstacleGeom] = (),
-    *,
-    table: bool = False,
-) -> mujoco.MjModel:
-    """Robot plus obstacles on mocap bodies ``obstacle_<i>`` (move them every step with
-    :func:`set_obstacle_pose`); with ``table``, the pour scene's floor and table (and the
-    Panda's pedestal, which lifts its base 0.2 m).
-
-    Obstacle geoms are static-class colliders (they touch robot geoms, so collisions show up
-    in ``data.contact``) and live in geom group 0.
-
-    Raises:
-        UnknownNameError: unknown robot.
-        InvalidParameterError: ``obstacles`` not a list of :class:`ObstacleGeom`, or one of
-            unknown kind, with sizes not 1 (sphere), 2 (capsule) or 3 (box) to 3 positive
-            numbers, a non-finite position or a quaternion that is not unit length.
-    """
-    if isinstance(obstacles, ObstacleGeom | str | dict) or not isinstance(obstacles, Iterable):
-        raise InvalidParameterError(
-            f"obstacles must be a list of ObstacleGeom, got {type(obstacles).__name__}"
-        )
-    obstacles = list(obstacles)
-    checked = [_check_obstacle(i, ob) for i, ob in enumerate(obstacles)]
-    spec = _robot_at_table(robot) if table else robot_spec(robot)
-    spec.modelname = f"{robot}_planning"
-    for i, (ob, (size, pos, quat)) in enumerate(zip(obstacles, checked, strict=True)):
-        body = spec.worldbody.add_body(
-            name=f"obstacle_{i}", pos=pos.tolist(), quat=quat.tolist(), mocap=True
-        )
-        body.add_geom(
-            name=f"obstacle_{i}",
-            type=_OBSTACLE_TYPES[ob.kind],
-            size=[*size.tolist(), *([0.0] * (3 - size.size))],
-            rgba=[1.0, 0.5, 0.1, 0.8],
-            contype=STATIC_CONTYPE,
-            conaffinity=0,
-        )
-    return spec.compile()
-
-
-def set_obstacle_pose(
-    model: mujoco.MjModel,
-    data: mujoco.MjData,
-    name: str,
-    pos: Sequence[float],
-    quat: Sequence[float] | None = None,
-) -> None:
-    """Move mocap obstacle (or any mocap body) ``name`` to ``pos`` (m) and ``quat`` (w, x, y, z).
-
-    Raises:
-        UnknownNameError: no mocap body called ``name``.
-        InvalidParameterError: ``pos`` not 3 finite numbers, ``quat`` not a finite unit
-            quaternion (within 1e-3); nothing is moved then.
-    """
-    mocap = [model.body(b).name for b in range(model.nbody) if model.body_mocapid[b] >= 0]
-    if not isinstance(name, str) or name not in mocap:
-        raise UnknownNameError("mocap body", name, mocap)
-    p, q = _check_pos_quat("", pos, quat)
-    mid = model.body_mocapid[model.body(name).id]
-    data.mocap_pos[mid] = p
-    if q is not None:
-        data.mocap_quat[mid] = q
 
 
 def body_clearance(

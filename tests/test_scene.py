@@ -1,4 +1,4 @@
-"""Scene composition: pour scenes for every container and robot option, planning scenes."""
+"""Scene composition: pour scenes for every container and robot option."""
 
 from __future__ import annotations
 
@@ -10,13 +10,7 @@ import pytest
 
 from pourbench.containers import container_names, get_container
 from pourbench.errors import UnknownNameError
-from pourbench.scene import (
-    ObstacleGeom,
-    body_clearance,
-    build_planning_scene,
-    build_pour_scene,
-    set_obstacle_pose,
-)
+from pourbench.scene import body_clearance, build_pour_scene
 
 G = 9.81
 NAMES = container_names()
@@ -91,11 +85,12 @@ def test_pouring_container_clearance_to_receiving() -> None:
     rim = data.site_xpos[model.site("receiving_rim").id]
     # the cup's side wall right above the tray's wall (mid-surfaces aligned)
     dx = tray.shape.points[-1, 0] - cup.shape.points[-1, 0]
-    set_obstacle_pose(model, data, "pouring", rim + np.array([dx, 0.0, 0.02]))
+    mocap = model.body("pouring").mocapid[0]
+    data.mocap_pos[mocap] = rim + np.array([dx, 0.0, 0.02])
     mujoco.mj_forward(model, data)
     expected = 0.02 - tray.wall / 2  # the cup's outer bottom to the tray's rounded rim
     assert body_clearance(model, data, cutoff=0.05) == pytest.approx(expected, abs=5e-4)
-    set_obstacle_pose(model, data, "pouring", rim + np.array([dx, 0.0, -0.01]))
+    data.mocap_pos[mocap] = rim + np.array([dx, 0.0, -0.01])
     mujoco.mj_forward(model, data)
     assert body_clearance(model, data) < -1e-3  # walls interpenetrate
     assert data.ncon == 0  # MuJoCo itself makes no contacts between two kinematic bodies
@@ -114,33 +109,6 @@ def test_movo_weighs_liquid_with_the_left_wrist_sensor() -> None:
     # static equilibrium: the sensor carries gripper + tray + liquid; the force on the child
     # points from the child (gripper side) towards the parent (wrist), i.e. up
     np.testing.assert_allclose(world, (0.0, 0.0, (1.435 + 0.2 + 0.1) * G), atol=1e-3)
-
-
-@pytest.mark.parametrize(("robot", "ee"), [("movo", "right_ee"), ("panda", "ee")])
-def test_planning_scene_obstacles_move_and_collide(robot: str, ee: str) -> None:
-    model = build_planning_scene(
-        robot,
-        [
-            ObstacleGeom("sphere", (0.05,), (2.0, 0.0, 1.0)),
-            ObstacleGeom("box", (0.1, 0.1, 0.1), (2, 1, 1)),
-        ],
-        table=True,
-    )
-    data = mujoco.MjData(model)
-    mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
-    mujoco.mj_forward(model, data)
-    assert data.ncon == 0
-    target = data.site_xpos[model.site(ee).id].copy()
-    set_obstacle_pose(model, data, "obstacle_0", target)
-    mujoco.mj_forward(model, data)
-    np.testing.assert_allclose(data.xpos[model.body("obstacle_0").id], target)
-    hit = {model.geom(c.geom1).name for c in data.contact[: data.ncon]}
-    hit |= {model.geom(c.geom2).name for c in data.contact[: data.ncon]}
-    assert "obstacle_0" in hit
-    with pytest.raises(ValueError, match="cone"):
-        build_planning_scene("panda", [ObstacleGeom("cone", (0.1,), (0, 0, 0))])
-    with pytest.raises(ValueError, match="obstacle_0"):
-        set_obstacle_pose(model, data, "obstacle_9", (0, 0, 0))
 
 
 def test_bad_names_list_the_known_ones() -> None:
@@ -216,54 +184,6 @@ def test_body_clearance_refuses_bad_input(mocap_scene, kwargs: dict, match: str)
     assert body_clearance(model, data, cutoff=0.05) > 0.04
 
 
-_N = float("nan")
-
-
-@pytest.mark.parametrize(
-    ("obstacles", "match"),
-    [
-        ([ObstacleGeom("sphere", (0.1,), (_N, 0, 0.5))], r"obstacle 0: pos must be finite"),
-        ([ObstacleGeom("sphere", (0.1,), (0, 0.5))], r"obstacle 0: pos must have shape"),
-        ([ObstacleGeom("sphere", (0.1,), (0, 0, 0.5), (0, 0, 0, 0))], r"obstacle 0: quat must"),
-        ([ObstacleGeom("box", (0.1,) * 3, (0, 0, 0.5), (_N, 0, 0, 0))], r"quat must be finite"),
-        ([ObstacleGeom("sphere", ("0.1",), (0, 0, 0.5))], r"sizes of a sphere must be a list"),
-        ([ObstacleGeom("sphere", 0.1, (0, 0, 0.5))], r"sizes of a sphere must be a list"),
-        ([ObstacleGeom("sphere", (True,), (0, 0, 0.5))], r"sizes of a sphere must be a list"),
-        ([ObstacleGeom("box", (0.1,), (0, 0, 0.5))], r"a box takes 3 sizes, got 1"),
-        ([ObstacleGeom("sphere", np.array([[0.1]]), (0, 0, 0.5))], r"size must have shape"),
-        ([ObstacleGeom("sphere", (-0.1,), (0, 0, 0.5))], r"sizes must be > 0"),
-        ([ObstacleGeom(["box"], (0.1,) * 3, (0, 0, 0.5))], r"kind \['box'\] not one of"),
-        (ObstacleGeom("sphere", (0.1,), (0, 0, 0.5)), r"obstacles must be a list"),
-        ([{"kind": "sphere"}], r"obstacle 0 must be an ObstacleGeom"),
-    ],
-)
-def test_planning_scene_refuses_bad_obstacles(obstacles, match: str) -> None:
-    with pytest.raises(ValueError, match=match):
-        build_planning_scene("panda", obstacles)
-
-
-@pytest.mark.parametrize(
-    ("pos", "quat", "match"),
-    [
-        ((_N, 0, 0), None, r"pos must be finite"),
-        ((0, 0), None, r"pos must have shape \(3,\)"),
-        ((0, 0, 0), (0, 0, 0, 0), r"quat must not be zero"),
-        ((0, 0, 0), (_N, 0, 0, 0), r"quat must be finite"),
-        ((0, 0, 0), (1, 0, 0), r"quat must have shape \(4,\)"),
-    ],
-)
-def test_set_obstacle_pose_refuses_bad_poses(pos, quat, match: str) -> None:
-    model = build_planning_scene("panda", [ObstacleGeom("sphere", (0.1,), (0.5, 0, 0.5))])
-    data = mujoco.MjData(model)
-    before = data.mocap_pos.copy(), data.mocap_quat.copy()
-    with pytest.raises(ValueError, match=match):
-        set_obstacle_pose(model, data, "obstacle_0", pos, quat)
-    np.testing.assert_array_equal(data.mocap_pos, before[0])  # nothing moved
-    np.testing.assert_array_equal(data.mocap_quat, before[1])
-    with pytest.raises(UnknownNameError, match="obstacle_0"):
-        set_obstacle_pose(model, data, None, (0, 0, 0))
-
-
 def test_view_refuses_bad_indices_and_foreign_data(mocap_scene, tmp_path) -> None:
     from pourbench.view import geom_mesh, record, world_meshes
 
@@ -288,18 +208,11 @@ def test_view_refuses_bad_indices_and_foreign_data(mocap_scene, tmp_path) -> Non
 
 
 def test_realistic_inputs_the_checks_still_take() -> None:
-    """What users pass and the bad-input checks must not refuse: numpy sizes and a generator
-    of obstacles, a non-unit quaternion (MuJoCo normalises it, as before), groups as a set."""
+    """What users pass and the bad-input checks must not refuse: a non-unit quaternion
+    (MuJoCo normalises it), view groups as a set."""
     from pourbench.containers import add_container_body
     from pourbench.view import world_meshes
 
-    obstacles = (
-        ObstacleGeom(kind, size, (0.5, 0.0, 0.5), (2.0, 0.0, 0.0, 0.0))
-        for kind, size in (("sphere", np.array([0.05])), ("box", np.float32([0.1] * 3)))
-    )
-    model = build_planning_scene("panda", obstacles)
-    np.testing.assert_allclose(model.geom_size[model.geom("obstacle_0").id][0], 0.05)
-    np.testing.assert_allclose(model.body("obstacle_1").quat, [1.0, 0.0, 0.0, 0.0])
     spec = mujoco.MjSpec()
     add_container_body(spec, spec.worldbody, "training", name="c", quat=(0.0, 0.0, 0.0, 3.0))
     m = spec.compile()

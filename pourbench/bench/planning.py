@@ -87,7 +87,6 @@ THESIS: dict[str, dict[str, tuple[float, ...]]] = {
         "PRM*": (3.86, 5.09, 0.019, 2.46e-9, 1.70e-2, 1.0),
     },
 }
-_THESIS_NAME = {"NMPC-MP (BFGS)": "NMPC-MP", "mink": "RelaxedIK"}
 
 
 def _log(msg: str) -> None:

@@ -10,7 +10,7 @@ imports the package first). The single env is the batch of one of the vector env
 
 from __future__ import annotations
 
-from pourbench import register_envs
+from pourbench import ENV_IDS, register_envs
 from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, handle_actions
 from pourbench.envs.core import PourBatch, PourConfig, default_solver_config
 from pourbench.envs.curriculum import Lesson, lesson_at, load_curriculum
@@ -18,9 +18,6 @@ from pourbench.envs.observation import WeightFilter
 from pourbench.envs.pour import PourEnv
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
 from pourbench.envs.vector import PourVectorEnv
-
-ENV_IDS: tuple[str, ...] = ("pourbench/Pour-v0", "pourbench/PourRobot-v0")
-
 
 __all__ = [
     "ACTION_MODES",
