@@ -54,9 +54,10 @@ def demo_policy() -> str | None:
 def run_demo(args: argparse.Namespace) -> int:
     """Run the demo with the parsed flags (also callable directly: every value is checked
     before the scene is built or the recording started)."""
+    from pourbench.fluids.config import SolverConfig
     from pourbench.fluids.record import FluidRecorder
     from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
-    from pourbench.fluids.solver import SolverConfig, cuda_available
+    from pourbench.fluids.solver import cuda_available
 
     mass_g = check_positive("mass_g", args.mass_g)
     seconds = check_positive("seconds", args.seconds)

@@ -23,7 +23,7 @@ from pourbench.envs.reward import RewardConfig
 from pourbench.envs.vector import PourVectorEnv
 from pourbench.errors import InvalidParameterError
 from pourbench.fluids.params import liquid_profile
-from pourbench.fluids.solver import inverse_transform_points
+from pourbench.geometry.rotation import inverse_transform_points
 
 ABOVE = (-0.02, 0.0, 0.12)  # start just above the receiving tray: pours within ~20 steps
 

@@ -7,7 +7,8 @@ import numpy as np
 
 from pourbench.containers import container_names, get_container
 from pourbench.fluids.accounting import LiquidCounter
-from pourbench.fluids.solver import PBFSolver, inverse_transform_points
+from pourbench.fluids.solver import PBFSolver
+from pourbench.geometry.rotation import inverse_transform_points
 from pourbench.geometry.shapes import BoxShell
 
 

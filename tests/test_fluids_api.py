@@ -13,9 +13,10 @@ import pytest
 
 from pourbench.errors import CapacityError, InvalidParameterError, UnknownNameError
 from pourbench.fluids import liquid_metrics, liquid_profile
+from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.meshes import check_closed_mesh, convex_hull
-from pourbench.fluids.solver import PBFSolver, SolverConfig, cuda_available
+from pourbench.fluids.solver import PBFSolver, cuda_available
 from pourbench.geometry.shapes import BoxShell, RevolvedShell, bottle, bowl, cup
 
 DT = SolverConfig().dt
@@ -796,7 +797,7 @@ def test_metrics_of_every_world_from_one_pass() -> None:
     testing its own particles in each container's frame in float64 gives."""
     from pourbench.fluids.metrics import liquid_metrics, liquid_metrics_all
     from pourbench.fluids.scenarios import two_cup_scene
-    from pourbench.fluids.solver import inverse_transform_points
+    from pourbench.geometry.rotation import inverse_transform_points
 
     scene = two_cup_scene(["water", "honey"], 60.0, num_worlds=2)
     s = scene.solver

@@ -10,8 +10,9 @@ import math
 import numpy as np
 import pytest
 
+from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.params import liquid_profile
-from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.solver import PBFSolver
 from pourbench.geometry.shapes import BoxShell
 
 G = 9.81

@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.params import liquid_profile
-from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.solver import PBFSolver
 
 G = 9.81
 CFG = SolverConfig(reorder_every=0)

@@ -8,9 +8,10 @@ import math
 import numpy as np
 import pytest
 
+from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.params import liquid_names, liquid_profile
 from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
-from pourbench.fluids.solver import PBFSolver, SolverConfig, inverse_transform_points
+from pourbench.fluids.solver import PBFSolver
 from pourbench.fluids.validation import (
     MARTIN_MOYCE,
     REST_FILLS_G,
@@ -28,6 +29,7 @@ from pourbench.fluids.validation import (
     rest_in_cup,
     scale_reading,
 )
+from pourbench.geometry.rotation import inverse_transform_points
 from pourbench.geometry.shapes import BoxShell, cup
 
 DT = SolverConfig().dt

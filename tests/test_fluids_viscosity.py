@@ -15,8 +15,9 @@ from scipy.spatial import cKDTree
 
 from pourbench.errors import InvalidParameterError
 from pourbench.fluids import viscosity as V
+from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.params import liquid_profile
-from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.solver import PBFSolver
 from pourbench.fluids.validation import (
     SETTLING_RANGE_PA_S,
     SETTLING_TOLERANCE,

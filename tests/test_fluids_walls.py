@@ -11,7 +11,8 @@ import pytest
 import warp as wp
 
 from pourbench.fluids import kernels as K
-from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.config import SolverConfig
+from pourbench.fluids.solver import PBFSolver
 from pourbench.geometry.shapes import BoxShell, RevolvedShell
 
 H = 0.01

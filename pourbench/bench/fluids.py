@@ -32,8 +32,9 @@ from pourbench.bench.fluids_viscosity import (
     viscosity_cost,
 )
 from pourbench.envs.core import default_solver_config
+from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.params import liquid_profile
-from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.solver import PBFSolver
 from pourbench.fluids.validation import (
     MARTIN_MOYCE,
     REST_FILLS_G,

@@ -13,8 +13,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from pourbench.fluids.config import SolverConfig, rest_sums
 from pourbench.fluids.kernels import spiky, spiky_grad
-from pourbench.fluids.solver import SolverConfig, rest_sums
 
 wp.set_module_options({"enable_backward": False})
 

@@ -12,10 +12,10 @@ from typing import Any
 import numpy as np
 
 from pourbench.envs.core import default_solver_config
+from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.falling_ball import CYLINDER_RADIUS, MARBLE_RADIUS
 from pourbench.fluids.params import liquid_profile
 from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
-from pourbench.fluids.solver import SolverConfig
 from pourbench.fluids.validation import (
     SETTLING_RANGE_PA_S,
     SETTLING_TOLERANCE,

@@ -55,7 +55,7 @@ from pourbench.fluids import (
 )
 from pourbench.fluids.accounting import LiquidCounter
 from pourbench.fluids.coupling import ReactionLog
-from pourbench.fluids.solver import container_lattice
+from pourbench.geometry.fill import container_lattice
 from pourbench.scene import TABLE_HALF_XY, TABLE_HEIGHT, body_clearance, build_pour_scene
 
 

@@ -94,7 +94,7 @@ from pourbench.errors import (
 )
 from pourbench.fluids import MujocoCoupling, PBFSolver
 from pourbench.fluids.accounting import LiquidCounter
-from pourbench.fluids.solver import container_lattice
+from pourbench.geometry.fill import container_lattice
 from pourbench.planners import (
     MinkController,
     NMPCConfig,

@@ -1,9 +1,10 @@
 """Liquids: a position-based-fluids solver in NVIDIA Warp, two-way coupled to MuJoCo."""
 
+from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics, liquid_metrics_all
 from pourbench.fluids.params import LiquidProfile, liquid_names, liquid_profile, load_liquids
-from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.solver import PBFSolver
 from pourbench.geometry.shapes import (
     BoxShell,
     ContainerShape,

@@ -20,7 +20,8 @@ import numpy as np
 import warp as wp
 
 from pourbench.fluids import kernels as K
-from pourbench.fluids.solver import PBFSolver, shape_kind
+from pourbench.fluids.colliders import shape_kind
+from pourbench.fluids.solver import PBFSolver
 from pourbench.geometry.shapes import ContainerShape
 
 

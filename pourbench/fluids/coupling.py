@@ -30,8 +30,9 @@ import warp as wp
 
 from pourbench.errors import InvalidParameterError, check_array, check_index, check_int
 from pourbench.fluids import kernels as K
+from pourbench.fluids.colliders import shape_kind
 from pourbench.fluids.meshes import convex_hull
-from pourbench.fluids.solver import PBFSolver, shape_kind
+from pourbench.fluids.solver import PBFSolver
 from pourbench.geometry.shapes import ContainerShape
 
 _GEOM_KIND = {

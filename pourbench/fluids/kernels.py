@@ -96,7 +96,7 @@ def density_pair(d2: float, h: float, grad_c: float, scorr: wp.vec4) -> wp.vec3:
     ∇_i W_ij = factor · r_ij; s_corr = −k ((W_poly6(r)/W_poly6(Δq))^n − c) with ``scorr`` =
     (k, n, W_poly6(Δq), c): Macklin & Müller 2013's Eq. 13 less an offset c that makes the
     term exert no net force on a particle in a flat free surface (see
-    :func:`pourbench.fluids.solver._scorr_offset`); W is the spiky density kernel (without
+    :func:`pourbench.fluids.config.scorr_offset`); W is the spiky density kernel (without
     its constant)."""
     dist = wp.sqrt(d2)
     ratio = poly6(d2, h) / scorr[2]
@@ -375,7 +375,7 @@ def wall_sum(d: float, kappa: float, h: float, coef: float) -> wp.vec2:
     a = h − d: exact for a sphere or a spherical cavity, to first order in κ for other
     smooth walls. ``kappa`` must lie in [−1/(2h), 2/h] (see :func:`wall_curvature`), where
     every shell's share stays within [0, 1] and 1 + κd at least 1/2. ``coef``
-    (:func:`pourbench.fluids.solver._wall_coef`) is 2π/s³ scaled so that at d = s/2 a plane
+    (:func:`pourbench.fluids.config.wall_coef`) is 2π/s³ scaled so that at d = s/2 a plane
     wall's term equals what a cubic lattice's missing half holds, times ``rest_packing``: the
     continuum overcounts a lattice's nearest neighbours."""
     dc = wp.clamp(d, 0.0, h)

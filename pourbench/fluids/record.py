@@ -8,7 +8,8 @@ import numpy as np
 import rerun as rr
 
 from pourbench.errors import check_index, check_positive
-from pourbench.fluids.solver import PBFSolver, transform_points
+from pourbench.fluids.solver import PBFSolver
+from pourbench.geometry.rotation import transform_points
 from pourbench.geometry.shapes import BoxShell, ContainerShape, RevolvedShell
 from pourbench.outputs import AtomicOutput, check_output_path
 

@@ -15,10 +15,11 @@ import mujoco
 import numpy as np
 
 from pourbench.errors import check_finite
+from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics
 from pourbench.fluids.params import LiquidProfile
-from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.solver import PBFSolver
 from pourbench.geometry.shapes import RevolvedShell, cup
 
 GRAVITY = 9.81

@@ -30,13 +30,10 @@ container's weight is the liquid's.
 
 from __future__ import annotations
 
-import functools
 import math
 import operator
-import re
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 import warp as wp
@@ -52,8 +49,26 @@ from pourbench.errors import (
 )
 from pourbench.fluids import kernels as K
 from pourbench.fluids import viscosity as V
+from pourbench.fluids.colliders import (
+    KIND_NAMES,
+    Collider,
+    check_sizes,
+    collider_bound,
+    shape_kind,
+)
+from pourbench.fluids.config import (
+    SolverConfig,
+    flat_surface_density,
+    lattice,
+    rest_sums,
+    scorr_offset,
+    surface_norms,
+    wall_coef,
+)
 from pourbench.fluids.meshes import check_closed_mesh
 from pourbench.fluids.params import LiquidProfile, liquid_profile
+from pourbench.geometry.fill import container_lattice
+from pourbench.geometry.rotation import transform_points
 from pourbench.geometry.shapes import BoxShell, ContainerShape, RevolvedShell
 
 RUNAWAY_ENERGY = 3.0
@@ -65,221 +80,6 @@ against a wall carries its tip higher than the column stood (docs/contact.md).""
 OVERFLOW_CHECK_EVERY = 16
 """Steps between checks that no neighbour list is full (one small read-back each)."""
 
-KIND_NAMES = {name: code for code, name in enumerate(K.KINDS)}
-"""Collider kind codes by name (:data:`pourbench.fluids.kernels.KINDS`)."""
-
-
-@dataclass(frozen=True)
-class SolverConfig:
-    """Solver settings (SI units). Defaults suit cups of a few cm holding 50–300 g.
-
-    Attributes:
-        spacing: particle rest spacing, m (particle mass = density × spacing³).
-        dt: time step, s.
-        iterations: Jacobi density iterations every world takes each step.
-        max_density_error: after those, a world iterates on while its largest density error
-            (ρ/ρ0 − 1 of any particle, measured in the last iteration) exceeds this, up to
-            ``max_iterations`` in all. A fixed count leaves a column compressed in proportion
-            to its depth (Jacobi spreads a correction a kernel radius an iteration), so deep
-            liquid takes more iterations and a shallow cup none (docs/contact.md).
-        max_iterations: cap on a world's density iterations in a step (``iterations`` turns the
-            extra iterations off).
-        smoothing: kernel radius h as a multiple of ``spacing``.
-        relaxation: constraint-force mixing ε as a fraction of a full neighbourhood's Σ|∇C|².
-        rest_packing: the kernel sum of a particle in the settled liquid at number density
-            1/spacing³, as a fraction of the sum in a cubic lattice of ``spacing``; the rest
-            "density" of the constraint is the lattice sum times this. A settled liquid is
-            disordered, and a disordered packing reaches the lattice's kernel sum only when
-            it is denser: with the lattice's sum (1.0) settled water holds 1026 kg/m³ in the
-            bulk (mass per volume in :func:`pourbench.fluids.validation.rest_in_cup`'s
-            probe), with 0.99 it holds 997–1003 kg/m³, with 0.985 1000. (Before the wall
-            term of the density constraint, 0.97 gave 995: liquid packed denser at walls.)
-        scorr_k, scorr_n, scorr_dq: tensile-instability term s_corr = −k (W(r)/W(Δq))^n,
-            with Δq = scorr_dq × h, offset at free surfaces so that it does not push a flat
-            surface outward (:func:`_scorr_offset`, docs/contact.md).
-        max_neighbours: capacity of a particle's neighbour list (full lists: all its
-            neighbours; half lists: the pairs it owns). At rest density a particle has about
-            33 neighbours within h, at the foot of a collapsing 25 cm column (the bench's dam
-            break at 128k particles) up to 71; 96 leaves headroom. Pairs beyond the capacity
-            are dropped with a warning. Memory only: 96 costs no time on the CPU.
-        pair_lists: ``"half"`` (each pair listed once, its terms added to both particles:
-            half the work, the CPU default) or ``"full"`` (every particle lists all its
-            neighbours and sums its own side: no atomics between threads, so CUDA runs are
-            reproducible; the CUDA default); ``"auto"`` picks by device.
-        sor: over/under-relaxation factor applied to each Jacobi position correction. Jacobi
-            overshoots: at 1.0 a settled liquid keeps a 2–4 cm/s jitter that never decays
-            (from one settled state, one step's p99 speed swings 0.8 / 3.4 cm/s between even
-            and odd iteration counts); at 0.7 settled water comes to rest (fastest particle
-            below 1 cm/s after 3 s) at the price of ~0.5 % more compression.
-        reorder_every: steps between spatial re-sorts of the particle arrays (0: never).
-            Particle order inside a world therefore changes over time.
-        graph: record a step's launches once as graphs (CUDA graphs, or Warp's CPU capture)
-            and replay them (re-recorded when the scene changes): no Python and no argument
-            packing per launch. A step is three: its start (prediction, neighbour lists, the
-            first ``iterations``), one extra iteration (replayed while some world is above
-            ``max_density_error``) and its end. The re-sort and the list-capacity check run
-            outside them on their steps. Same kernels and order, so the same results. On a
-            CUDA device without Warp's memory pool the step is launched kernel by kernel.
-        viscosity_tolerance: the implicit viscosity solve of a world with a dynamic viscosity
-            (``LiquidProfile.viscosity_pa_s``) stops when its residual is at most this
-            fraction of its right-hand side (:mod:`pourbench.fluids.viscosity`).
-        viscosity_max_iterations: cap on that solve's conjugate-gradient iterations a step.
-        laplacian_packing: the settled liquid's pair sum of the viscous Laplacian's kernel
-            second moment (Σ_j V g_ij r_ij², :mod:`pourbench.fluids.viscosity`) as a fraction of
-            the continuum's; the pair terms are divided by it (measured on settled water,
-            docs/viscosity.md).
-        viscosity_rate: κ of the XSPH mapping (dimensionless, per unit FleX viscosity): each
-            step of ``calibration_dt`` relaxes a velocity toward its neighbours' kernel mean by
-            a = κν / (1 + κν); other steps use 1 − (1 − a)^(dt / calibration_dt), the same
-            relaxation per second.
-        xsph_viscosity: the FleX viscosity coefficient XSPH uses for a liquid with a physical
-            viscosity (``LiquidProfile.viscosity_pa_s``): a light smoothing of particle noise,
-            Table 6.2 water's 0.01, the same for every such liquid, while the implicit solve
-            applies the viscosity itself. A liquid without one is smoothed by its own FleX
-            coefficient, as in FleX.
-        calibration_dt: the step at which the per-step fractions (XSPH viscosity, particle
-            friction, adhesion) were calibrated against the validation experiments; they are
-            rescaled to other steps so that a liquid behaves the same at any dt
-            (:meth:`PBFSolver.step_fractions`).
-        cohesion_accel, surface_tension_accel: acceleration per unit coefficient, m/s².
-        adhesion_gain: fraction of the gap closed per step of ``calibration_dt`` per unit
-            FleX adhesion (the spring it makes is kept at other steps, see
-            :meth:`PBFSolver.step_fractions`).
-        max_speed: speed above which a world is flagged as diverged in any scene, m/s
-            (:meth:`PBFSolver.diverged` flags slower runaways by a bound from the scene).
-        sleep_threshold: FleX's ``sleepThreshold``, m/s: a particle whose step ends slower
-            than this does not move that step (it keeps its start position, its velocity is
-            zeroed before the velocity filters). 0 (FleX's default) turns it off. At 0.005 a
-            cup of water filled at rest is below 2 cm/s within 1 s and sleeps in the level
-            and density it settles to without it (docs/rest.md); the viscous pours keep their
-            order, honey and ketchup leave a little more (4.2 and 60.6 g of 200 instead of
-            3.9 and 59.4: films slower than the threshold stop draining).
-        gravity: m/s².
-        device: ``"cpu"`` or ``"cuda"`` (or ``"cuda:N"``).
-    """
-
-    spacing: float = 0.005
-    dt: float = 1.0 / 240.0
-    iterations: int = 4
-    max_density_error: float = 0.015
-    max_iterations: int = 64
-    smoothing: float = 2.0
-    relaxation: float = 0.01
-    rest_packing: float = 0.99
-    scorr_k: float = 0.1
-    scorr_n: float = 4.0
-    scorr_dq: float = 0.2
-    max_neighbours: int = 96
-    pair_lists: str = "auto"
-    sor: float = 0.7
-    reorder_every: int = 16
-    graph: bool = True
-    viscosity_tolerance: float = 1.0e-3
-    viscosity_max_iterations: int = 100
-    laplacian_packing: float = 0.897
-    viscosity_rate: float = 1.0
-    xsph_viscosity: float = 0.01
-    calibration_dt: float = 1.0 / 240.0
-    cohesion_accel: float = 100.0
-    surface_tension_accel: float = 100.0
-    adhesion_gain: float = 10.0
-    max_speed: float = 20.0
-    sleep_threshold: float = 0.0
-    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
-    device: str = "cpu"
-
-    def __post_init__(self) -> None:
-        for name in (
-            "spacing",
-            "dt",
-            "smoothing",
-            "max_speed",
-            "calibration_dt",
-            "rest_packing",
-            "laplacian_packing",
-        ):
-            check_finite(name, getattr(self, name), minimum=1e-9)
-        if self.smoothing <= 1.0:
-            raise InvalidParameterError(
-                f"smoothing must be > 1 (h wider than a spacing), got {self.smoothing!r}"
-            )
-        if not 0.0 <= check_finite("scorr_dq", self.scorr_dq) < 1.0:
-            raise InvalidParameterError(f"scorr_dq must be in [0, 1) (of h), got {self.scorr_dq!r}")
-        for name in (
-            "relaxation",
-            "scorr_k",
-            "scorr_n",
-            "scorr_dq",
-            "viscosity_rate",
-            "xsph_viscosity",
-            "sleep_threshold",
-            "cohesion_accel",
-            "surface_tension_accel",
-            "adhesion_gain",
-        ):
-            check_finite(name, getattr(self, name), minimum=0.0)
-        check_finite("sor", self.sor, minimum=1e-9)
-        check_finite("viscosity_tolerance", self.viscosity_tolerance, minimum=1e-9)
-        check_int("viscosity_max_iterations", self.viscosity_max_iterations, minimum=1)
-        check_finite("max_density_error", self.max_density_error, minimum=0.0)
-        for name, minimum in (("iterations", 1), ("max_neighbours", 1), ("reorder_every", 0)):
-            check_int(name, getattr(self, name), minimum=minimum)
-        check_int("max_iterations", self.max_iterations, minimum=self.iterations)
-        if self.pair_lists not in ("auto", "half", "full"):
-            raise InvalidParameterError(
-                f"pair_lists must be 'auto', 'half' or 'full', got {self.pair_lists!r}"
-            )
-        if not isinstance(self.graph, bool):
-            raise InvalidParameterError(f"graph must be True or False, got {self.graph!r}")
-        try:
-            gravity = tuple(self.gravity)
-        except TypeError:
-            gravity = ()
-        if len(gravity) != 3:
-            raise InvalidParameterError(f"gravity must be 3 numbers (m/s²), got {self.gravity!r}")
-        for axis, value in zip("xyz", gravity, strict=True):
-            check_finite(f"gravity {axis}", value)
-        if not isinstance(self.device, str) or not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
-            raise InvalidParameterError(
-                f"device must be 'cpu', 'cuda' or 'cuda:N', got {self.device!r}"
-            )
-
-    @property
-    def h(self) -> float:
-        """Kernel (smoothing) radius, m."""
-        return self.smoothing * self.spacing
-
-    @property
-    def radius(self) -> float:
-        """Particle collision radius, m."""
-        return 0.5 * self.spacing
-
-    @property
-    def adhesion_range(self) -> float:
-        """Band beyond contact within which adhesion holds a particle, m (half a spacing)."""
-        return 0.5 * self.spacing
-
-
-@dataclass
-class Collider:
-    """One signed-distance collider in one world.
-
-    ``pose`` is a 7-vector (x, y, z, qx, qy, qz, qw) in the world frame and ``com`` the point
-    (world frame, m) its reaction torque is taken about; once the collider is added to a
-    solver both are views of a row of the solver's pose table, which
-    :meth:`PBFSolver.set_collider_poses` writes. ``body`` is a slot in the solver's
-    reaction-force table, or −1.
-    """
-
-    world: int
-    kind: int
-    params: np.ndarray
-    body: int = -1
-    mesh: wp.Mesh | None = None
-    pose: np.ndarray = field(default_factory=lambda: np.array([0, 0, 0, 0, 0, 0, 1.0]))
-    shape: ContainerShape | None = None
-    com: np.ndarray = field(default_factory=lambda: np.zeros(3))
-
 
 def cuda_available() -> bool:
     """Whether Warp sees a CUDA device (probing it here keeps Warp's greeting off stdout)."""
@@ -289,114 +89,12 @@ def cuda_available() -> bool:
         return False
 
 
-def shape_kind(shape: ContainerShape) -> tuple[int, np.ndarray]:
-    """Kernel kind and flat parameters of a container shape."""
-    if isinstance(shape, RevolvedShell):
-        return KIND_NAMES["revolved"], shape.kernel_params()
-    if isinstance(shape, BoxShell):
-        return KIND_NAMES["box_shell"], shape.kernel_params()
-    raise InvalidParameterError(f"unsupported container shape {type(shape).__name__}")
-
-
-_SIZES = {  # primitive kinds: how many sizes they take
-    "plane": (0, 1),
-    "mesh": (0, 1),
-    "box": (3,),
-    "sphere": (1,),
-    "capsule": (2,),
-    "cylinder": (2,),
-}
-
-
-def _check_sizes(kind: str, params: np.ndarray) -> None:
-    """The sizes a primitive collider needs: box half-extents, sphere radius, capsule and
-    cylinder radius and half-length, all > 0 (a capsule's half-length may be 0); plane and
-    mesh take none (or one ignored value)."""
-    counts = _SIZES.get(kind)
-    if counts is None:  # container shells: the shape's own checks hold
-        return
-    if len(params) not in counts:
-        raise InvalidParameterError(
-            f"a {kind!r} collider takes {' or '.join(map(str, counts))} size(s), got "
-            f"{len(params)}: {params.tolist()}"
-        )
-    if kind in ("plane", "mesh"):
-        return
-    positive = params[:1] if kind == "capsule" else params
-    if np.any(positive <= 0) or np.any(params < 0):
-        raise InvalidParameterError(f"{kind!r} sizes must be > 0, got {params.tolist()}")
-
-
 def _as_rows(name: str, value: object) -> np.ndarray:
     """Points as an (n, 3) float array; a single point (3,) is one row."""
     arr = np.asarray(value, dtype=object)
     if arr.ndim == 1 and len(arr) == 3:
         value = [value]
     return check_array(name, value, (None, 3))
-
-
-def _bound(c: Collider) -> float:
-    """Radius about the collider's origin that holds all of it (particles farther out than
-    this plus their radius cannot touch it, so the kernels skip its SDF); planes: unbounded."""
-    p = c.params.astype(float)
-    if c.kind == KIND_NAMES["plane"]:
-        return 1.0e30
-    if c.kind == KIND_NAMES["box"]:
-        return float(np.linalg.norm(p[:3]))
-    if c.kind == KIND_NAMES["sphere"]:
-        return float(p[0])
-    if c.kind == KIND_NAMES["capsule"]:
-        return float(p[0] + p[1])
-    if c.kind == KIND_NAMES["cylinder"]:
-        return float(np.hypot(p[0], p[1]))
-    if c.kind == KIND_NAMES["mesh"]:
-        return float(np.linalg.norm(c.mesh.points.numpy(), axis=1).max())
-    if c.kind == KIND_NAMES["revolved"]:  # wall, then (ρ, z) points
-        pts = p[1:].reshape(-1, 2)
-        return float(np.hypot(pts[:, 0], pts[:, 1]).max() + 0.5 * p[0])
-    wall, hx, hy, depth = p[:4]  # box shell
-    return float(np.linalg.norm([hx + wall, hy + wall, depth + 2.0 * wall]))
-
-
-def rest_sums(cfg: SolverConfig) -> tuple[float, float, float]:
-    """Rest sums of the density constraint, from a particle in a full cubic lattice of
-    ``spacing`` (the kernel sum scaled by ``rest_packing``).
-
-    Returns:
-        w0: rest_packing × Σ (h − r)³ (the spiky sum without its constant), m³.
-        grad_c: spiky-gradient constant −45/(π h⁶) divided by the rest density in kernel
-            units, so ``spiky_grad(..., grad_c)`` is ∇C directly, 1/m⁴ · m.
-        sum_grad2: Σ|∇C|² of the full neighbourhood, 1/m².
-    """
-    h, d = cfg.h, cfg.spacing
-    n = math.ceil(h / d)
-    g = np.arange(-n, n + 1) * d
-    r = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
-    dist = np.linalg.norm(r, axis=1)
-    w0 = cfg.rest_packing * float(np.where(dist < h, (h - dist) ** 3, 0.0).sum())
-    grad_c = -3.0 / w0  # d/dr of (h − r)³, over the rest sum
-    with np.errstate(invalid="ignore", divide="ignore"):
-        coef = np.where((dist < h) & (dist > 0), grad_c * (h - dist) ** 2 / dist, 0.0)
-    grads = r * coef[:, None]
-    sum_grad2 = float((grads**2).sum() + (grads.sum(0) ** 2).sum())
-    return w0, grad_c, sum_grad2
-
-
-def _wall_coef(cfg: SolverConfig) -> float:
-    """``coef`` of :func:`pourbench.fluids.kernels.wall_sum`: a particle at s/2 from a wall
-    in a cubic lattice of spacing s misses the lattice points mirrored beyond the wall; their
-    kernel sum over the continuum's a⁵ (h/20 − a/30) at a = h − s/2, times ``rest_packing``
-    (as the rest sum w0). About 0.76 × 2π/s³ at h = 2s: the continuum counts neighbours
-    closer than a lattice holds them."""
-    h, s = cfg.h, cfg.spacing
-    n = math.ceil(h / s)
-    g = np.arange(-n, n + 1) * s
-    beyond = -(np.arange(n) + 1.0) * s  # mirror layers at s, 2s, ... from the particle
-    x, y, z = np.meshgrid(g, g, beyond, indexing="ij")
-    dist = np.sqrt(x**2 + y**2 + z**2)
-    mirror = float(np.where(dist < h, (h - dist) ** 3, 0.0).sum())
-    a = h - s / 2
-    return cfg.rest_packing * mirror / (a**5 * (h / 20 - a / 30))
 
 
 class PBFSolver:
@@ -426,10 +124,10 @@ class PBFSolver:
         self.half_lists = mode == "half"
         self.pairk = K.HALF_LISTS if self.half_lists else K.FULL_LISTS
         self.w0, self.grad_c, sum_grad2 = rest_sums(self.config)
-        self.wall_coef = _wall_coef(self.config)
-        lat = np.linalg.norm(_lattice(self.config), axis=1)
+        self.wall_coef = wall_coef(self.config)
+        lat = np.linalg.norm(lattice(self.config), axis=1)
         self.lattice_neighbours = int(np.count_nonzero((lat > 0) & (lat < self.config.h)))
-        self.coh_norm, self.curv_norm = _surface_norms(self.config, self.grad_c)
+        self.coh_norm, self.curv_norm = surface_norms(self.config, self.grad_c)
         self.eps = self.config.relaxation * sum_grad2
         # λ carries units of m² here (C is dimensionless, ∇C is 1/m), so the dimensionless
         # s_corr of Macklin & Müller is scaled by the rest neighbourhood's 1/Σ|∇C|².
@@ -438,9 +136,9 @@ class PBFSolver:
             self.config.scorr_k / sum_grad2,
             self.config.scorr_n,
             (self.config.h**2 - dq * dq) ** 3,
-            _scorr_offset(self.config),
+            scorr_offset(self.config),
         )
-        self.surface_band = 1.0 - _flat_surface_density(self.config)
+        self.surface_band = 1.0 - flat_surface_density(self.config)
         self.liquids: list[LiquidProfile] = [liquid_profile("water")] * self.num_worlds
         self.colliders: list[Collider] = []
         self.num_body_slots = 0
@@ -511,7 +209,7 @@ class PBFSolver:
                 f"a {kind!r} collider is a container shell: add it with add_container(world, shape)"
             )
         arr = check_array("collider params", np.ravel(np.asarray(params, dtype=object)), (None,))
-        _check_sizes(kind, arr)
+        check_sizes(kind, arr)
         if body != -1:
             check_index("body slot", body, self.num_body_slots)
         pose_arr = (
@@ -784,7 +482,7 @@ class PBFSolver:
             np.concatenate(flat) if flat else np.zeros(1, np.float32), dtype=float, device=dev
         )
         self.cols.body = ints([c.body for c in cols])
-        self._col_bounds = np.array([_bound(c) for c in cols], float)
+        self._col_bounds = np.array([collider_bound(c) for c in cols], float)
         self._col_worlds = np.array([c.world for c in cols], int)
         # where each world's colliders begin in upload order (for _track_wall_speed)
         self._world_first_col = np.flatnonzero(np.diff(self._col_worlds, prepend=-1))
@@ -1522,179 +1220,3 @@ class PBFSolver:
             device=dev,
         )
         return flags.numpy() > 0
-
-
-def _lattice(cfg: SolverConfig) -> np.ndarray:
-    """Offsets (m) of a cubic lattice of ``spacing`` around a particle at the origin, out to
-    at least h along each axis (the origin included)."""
-    n = math.ceil(cfg.h / cfg.spacing)
-    g = np.arange(-n, n + 1) * cfg.spacing
-    return np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
-
-
-def _flat_surface_density(cfg: SolverConfig) -> float:
-    """ρ/ρ0 of a particle in the flat top face of a cubic lattice (spiky kernel sums)."""
-    pts = _lattice(cfg)
-    w = np.clip(cfg.h - np.linalg.norm(pts, axis=1), 0.0, None) ** 3
-    return float(w[pts[:, 2] <= 0].sum() / w.sum())
-
-
-def _scorr_offset(cfg: SolverConfig) -> float:
-    """The offset c of the tensile term s_corr = −k ((W(r)/W(Δq))^n − c) that a pair in a free
-    surface takes in full (:func:`pourbench.fluids.kernels.pair_lambda`): the mean of
-    (W(r)/W(Δq))^n over a cubic lattice's half-space below a particle, weighted by each
-    neighbour's ∇W along the surface normal. With it s_corr exerts no net force on a particle
-    in a flat free surface (Macklin & Müller's term, c = 0, pushes it outward, and with the
-    unilateral density constraint nothing pulls it back: a free drop flies apart); the term
-    still pushes pairs closer than about a spacing apart and pulls wider ones together."""
-    h = cfg.h
-    pts = _lattice(cfg)
-    below = pts[pts[:, 2] < 0]
-    r = np.linalg.norm(below, axis=1)
-    ok = r < h
-    r, z = r[ok], -below[ok, 2]
-    dq = cfg.scorr_dq * h
-    ratio = (h * h - r * r) ** 3 / (h * h - dq * dq) ** 3
-    weight = z * (h - r) ** 2 / r  # the spiky gradient's component along the normal
-    return float(np.sum(ratio**cfg.scorr_n * weight) / np.sum(weight))
-
-
-def _surface_norms(cfg: SolverConfig, grad_c: float) -> tuple[float, float]:
-    """Magnitudes of the cohesion and curvature sums of a particle on a flat lattice surface.
-
-    Dividing by them makes FleX's cohesion / surface-tension coefficients fractions of
-    ``cohesion_accel`` / ``surface_tension_accel`` at a flat free surface, at any spacing.
-    """
-    h = cfg.h
-    below = _lattice(cfg)
-    below = below[below[:, 2] <= 0]  # half-space lattice; the particle sits at the origin
-    dist = np.linalg.norm(below, axis=1)
-    ok = (dist > 0) & (dist < h)
-    r = dist[ok]
-    spline = np.where(
-        2 * r > h,
-        64 * (h - r) ** 3 * r**3 / h**6,
-        64 * (2 * (h - r) ** 3 * r**3 - h**6 / 64) / h**6,
-    )
-    coh = np.linalg.norm((below[ok] / r[:, None] * spline[:, None]).sum(0))
-    grads = -below[ok] * (grad_c * (h - r) ** 2 / r)[:, None]
-    # a surface particle's normal against (nearly normal-free) neighbours below it
-    curv = h * np.linalg.norm(grads.sum(0)) * np.count_nonzero(below[ok][:, 2] < 0)
-    return float(coh), float(curv)
-
-
-_FILL_SLACK = 1e-7
-"""m: fill points may sit this much closer than a radius to a wall (float rounding)."""
-
-
-def container_lattice(shape: ContainerShape, spacing: float) -> np.ndarray:
-    """Fill points (local frame) covering a container's cavity at one per ``spacing``³.
-
-    Layers ``spacing`` apart from the bottom up. In a revolved cavity each layer is a set of
-    concentric rings ``spacing`` apart, the outer one half a spacing inside the wall, each
-    holding round(2πρ / spacing) points: a layer then covers its disc at the liquid's number
-    density, so the filled level is the level its volume reaches (a square lattice cut by
-    a circle leaves a ragged empty rim — 12 % of a 4 cm cup's area at 5 mm — and the filled
-    column would collapse into it); alternate layers turn their rings by half a step. A box
-    cavity gets rows of points holding its area at the same density. Points are sorted
-    lowest layer first, and within a layer in a golden-ratio order, so that a partial top
-    layer is spread evenly. The array is cached per (shape, spacing) and read-only.
-    """
-    return _cached_lattice(shape, float(spacing))
-
-
-@functools.lru_cache(maxsize=64)
-def _cached_lattice(shape: ContainerShape, spacing: float) -> np.ndarray:
-    r = 0.5 * spacing
-    layers = []
-    zs = np.arange(shape.bottom_z + r, shape.rim_height - r + 1e-9, spacing)
-    if isinstance(shape, RevolvedShell):
-        rings = _ring_radii(shape, zs, r)
-        layer_xy = [_disc_points(rings[k], spacing, 0.5 * (k % 2)) for k in range(len(zs))]
-    else:
-        layer_xy = [_rect_points(shape.half_x, shape.half_y, spacing)] * len(zs)
-    for z, xy in zip(zs, layer_xy, strict=True):
-        if len(xy) == 0:
-            continue
-        pts = np.column_stack([xy, np.full(len(xy), z)])
-        pts = pts[shape.sdf(pts) >= r - _FILL_SLACK]
-        spread = np.argsort((np.arange(len(pts)) * 0.6180339887498949) % 1.0, kind="stable")
-        layers.append(pts[spread])
-    out = np.concatenate(layers) if layers else np.zeros((0, 3))
-    out.flags.writeable = False  # shared by every caller through the cache
-    return out
-
-
-def _rect_points(half_x: float, half_y: float, spacing: float) -> np.ndarray:
-    """Rows ``≈ spacing`` apart across a rectangle holding (area / spacing²) points in all:
-    each row gets its share rounded with the error carried to the next row, its points
-    spread evenly from half a spacing inside one wall to half a spacing inside the other."""
-    rows = max(1, round(2.0 * half_y / spacing))
-    per_row = 4.0 * half_x * half_y / spacing**2 / rows
-    pts = []
-    for j, y in enumerate(_inset(half_y, spacing, rows)):
-        m = max(1, round((j + 1) * per_row) - round(j * per_row))
-        pts.append(np.column_stack([_inset(half_x, spacing, m), np.full(m, y)]))
-    return np.concatenate(pts)
-
-
-def _inset(half: float, spacing: float, m: int) -> np.ndarray:
-    """``m`` evenly spaced coordinates in [−half + spacing/2, half − spacing/2]."""
-    if m == 1:
-        return np.zeros(1)
-    return np.linspace(-half + 0.5 * spacing, half - 0.5 * spacing, m)
-
-
-def _ring_radii(shape: RevolvedShell, zs: np.ndarray, clearance: float) -> np.ndarray:
-    """Largest radius at each height whose point is ``clearance`` from the wall (bisection on
-    the SDF: on a sloped wall this is less than the cavity radius minus the clearance);
-    −1 where even the axis is closer."""
-    clearance -= _FILL_SLACK
-    lo, hi = np.zeros(len(zs)), shape.inner_radius(zs).astype(float)
-    zero = np.zeros(len(zs))
-    for _ in range(40):
-        mid = 0.5 * (lo + hi)
-        ok = shape.sdf(np.column_stack([mid, zero, zs])) >= clearance
-        lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
-    axis_ok = shape.sdf(np.column_stack([zero, zero, zs])) >= clearance
-    return np.where(axis_ok, lo, -1.0)
-
-
-def _disc_points(rc: float, spacing: float, phase: float) -> np.ndarray:
-    """Concentric rings of points ``spacing`` apart with centres within radius ``rc``; each
-    ring at radius ρ holds round(2πρ / spacing) points, the central remainder one point when
-    its area is at least half a cell. ``phase`` turns each ring by that fraction of a step."""
-    pts = []
-    rho = rc
-    while rho >= 0.5 * spacing:
-        m = max(1, round(2.0 * math.pi * rho / spacing))
-        a = (np.arange(m) + phase) * (2.0 * math.pi / m)
-        pts.append(np.column_stack([rho * np.cos(a), rho * np.sin(a)]))
-        rho -= spacing
-    if rho > -0.5 * spacing and math.pi * (rho + 0.5 * spacing) ** 2 >= 0.5 * spacing**2:
-        pts.append(np.zeros((1, 2)))
-    return np.concatenate(pts) if pts else np.zeros((0, 2))
-
-
-def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors ``v`` (..., 3) by unit quaternion ``q`` = (x, y, z, w): one (4,) for
-    every vector, or one per vector (..., 4)."""
-    q = np.asarray(q, float)
-    u, w = q[..., :3], q[..., 3:]
-    v = np.asarray(v, float)
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
-
-
-def transform_points(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Apply a (x, y, z, qx, qy, qz, qw) pose (or one per point, (..., 7)) to local points."""
-    pose = np.asarray(pose, float)
-    return quat_rotate(pose[..., 3:], pts) + pose[..., :3]
-
-
-def inverse_transform_points(pose: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """World points into the local frame of a (x, y, z, qx, qy, qz, qw) pose (or of one pose
-    per point, (..., 7))."""
-    pose = np.asarray(pose, float)
-    qc = np.concatenate([-pose[..., 3:6], pose[..., 6:]], axis=-1)
-    return quat_rotate(qc, np.asarray(pts, float) - pose[..., :3])

@@ -13,9 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.scenarios import GRAVITY, tilt_schedule, two_cup_scene
-from pourbench.fluids.solver import PBFSolver, SolverConfig
+from pourbench.fluids.solver import PBFSolver
 from pourbench.geometry.shapes import BoxShell, cup
 
 # Martin & Moyce (1952), n² = 2 (column height 2a, width a): surge-front position Z = x/a at
