@@ -129,6 +129,6 @@ def test_collider_poses_are_rows_of_one_table_written_by_index() -> None:
         s.set_collider_poses(np.array([0, 9]), poses[:2] + 1.0)
     np.testing.assert_array_equal([c.pose for c in s.colliders], expected)
     s.step()
-    device = s.cols.pose.numpy()
+    device = s.buf.cols.pose.numpy()
     order = [3, 4, 5, 6, 7, 8, 0, 1, 2]  # worlds 0, 1, 2
     np.testing.assert_array_equal(device, expected[order].astype(np.float32))

@@ -94,7 +94,7 @@ def test_a_nan_particle_counts_in_flight() -> None:
     s.add_container(0, shape, pose=pose)
     s.add_particles(0, [[0.0, 0.0, shape.bottom_z + 0.01], [0.0, 0.0, 0.3], [0.5, 0, -1]])
     s.step()
-    x = s.x.numpy()  # the CPU array's own memory
+    x = s.buf.x.numpy()  # the CPU array's own memory
     x[np.argmax(x[:, 2])] = np.nan  # the highest particle diverges
     inside, spilled, flight = LiquidCounter(s, [shape], 0.0).count([0], pose[None, None], [[0]])
     assert (inside[0, 0], spilled[0], flight[0]) == (1, 1, 1)

@@ -441,7 +441,7 @@ def test_half_neighbour_lists_hold_every_pair_once() -> None:
         s.fill(w, c, 60.0 + 40.0 * w, "water")
     s.step(5)
     s._build_neighbours()  # lists of the current positions (the step builds them on p)
-    p = s.p.numpy()
+    p = s.buf.p.numpy()
     listed = [(min(i, j), max(i, j)) for i, js in enumerate(s.neighbour_lists()) for j in js]
     assert len(listed) == len(set(listed))  # no pair twice
     world = s.worlds()
@@ -467,7 +467,7 @@ def test_full_neighbour_lists_hold_every_neighbour() -> None:
         s.fill(w, s.add_container(w, cup(0.04, 0.08)), 50.0 + 30.0 * w, "water")
     s.step(5)
     s._build_neighbours()
-    p, lists = s.p.numpy(), s.neighbour_lists()
+    p, lists = s.buf.p.numpy(), s.neighbour_lists()
     assert all(len(js) == len(set(js.tolist())) and i not in js for i, js in enumerate(lists))
     listed = {(i, int(j)) for i, js in enumerate(lists) for j in js}
     assert listed == {(j, i) for i, j in listed}  # symmetric
@@ -550,7 +550,7 @@ def test_velocities_are_the_particles_motion() -> None:
     # settled: the median particle moves under 2 mm/s (0.8 measured), while the impulses
     # carried into the next step are 7.5 mm/s at the median
     assert np.median(np.linalg.norm(moved, axis=1)) < 2e-3
-    carried = s.v.numpy()
+    carried = s.buf.v.numpy()
     assert np.median(np.linalg.norm(carried - moved, axis=1)) > 5e-3
 
 
@@ -705,7 +705,7 @@ def test_bounding_spheres_skip_only_colliders_out_of_reach() -> None:
         s.fill(0, tank, 300.0, "water")
         s.step(1)
         if not skip:
-            s.cols.bound.fill_(1.0e30)
+            s.buf.cols.bound.fill_(1.0e30)
         s.step(30)
         return s.positions()
 

@@ -119,7 +119,7 @@ def _system(s: PBFSolver) -> sps.csr_matrix:
     """The system matrix A = I + c (K + T) the solve states (module docstring), assembled
     from the particles' end-of-step positions and their wall records."""
     visc = s.viscosity
-    x = s.x.numpy().astype(float)
+    x = s.buf.x.numpy().astype(float)
     n, h = len(x), s.config.h
     pairs = cKDTree(x).query_pairs(h, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
@@ -128,7 +128,7 @@ def _system(s: PBFSolver) -> sps.csr_matrix:
     g = visc.coef * (h - d) ** 2 * d / (d * d + 0.01 * h * h)
     rh = r / d[:, None]
     block = g[:, None, None] * rh[:, :, None] * rh[:, None, :]
-    wall_n = s.wall.numpy()[:, :3].astype(float)
+    wall_n = s.buf.wall.numpy()[:, :3].astype(float)
     wt = visc.wall_t.numpy().astype(float)
     t_block = wt[:, 1, None, None] * np.eye(3) + (wt[:, 0] - wt[:, 1])[:, None, None] * (
         wall_n[:, :, None] * wall_n[:, None, :]
@@ -186,10 +186,10 @@ def test_viscosity_keeps_momentum_and_spares_rigid_motion() -> None:
         s.add_particles(0, x, field(x))
         s.step()
         visc = s.viscosity
-        xe = s.x.numpy().astype(float)
+        xe = s.buf.x.numpy().astype(float)
         before, after = visc.rhs.numpy().astype(float), visc.sol.numpy().astype(float)
         if name != "random":  # no correction moved them (particles are reordered: x_prev)
-            np.testing.assert_allclose(before, field(s.x_prev.numpy()), atol=1e-6)
+            np.testing.assert_allclose(before, field(s.buf.x_prev.numpy()), atol=1e-6)
         scale = np.abs(before).sum()
         assert np.abs(after.sum(0) - before.sum(0)).max() < 1e-5 * scale
         arm = xe - xe.mean(0)

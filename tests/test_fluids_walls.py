@@ -73,7 +73,7 @@ def wall_curvatures(solver: PBFSolver, points: np.ndarray) -> np.ndarray:
     gravity, so that the particles stay where they were put)."""
     solver.add_particles(0, points)
     solver.step()
-    return solver.wall.numpy()[:, 4].astype(float)
+    return solver.buf.wall.numpy()[:, 4].astype(float)
 
 
 def test_the_wall_curvature_of_a_sphere_and_a_plane() -> None:

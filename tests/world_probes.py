@@ -11,7 +11,7 @@ def poison(batch, world: int, count: int = 5) -> None:
     solver = batch.solver
     x = solver.positions()
     x[solver.world_slice(world)][:count] = np.nan
-    solver.x.assign(x.astype(np.float32))
+    solver.buf.x.assign(x.astype(np.float32))
 
 
 def world_steps(batch, world: int) -> int:

@@ -95,3 +95,67 @@ def collider_bound(c: Collider) -> float:
         return float(np.hypot(pts[:, 0], pts[:, 1]).max() + 0.5 * p[0])
     wall, hx, hy, depth = p[:4]  # box shell
     return float(np.linalg.norm([hx + wall, hy + wall, depth + 2.0 * wall]))
+
+
+@dataclass(frozen=True)
+class ColliderLayout:
+    """The rows of a device collider table (:func:`collider_table`), grouped by world.
+
+    Attributes:
+        order: the solver's collider index of each row.
+        bounds: each row's bounding radius (:func:`collider_bound`), m.
+        worlds: each row's world.
+        world_first: the first row of each world that has colliders.
+    """
+
+    order: np.ndarray
+    bounds: np.ndarray
+    worlds: np.ndarray
+    world_first: np.ndarray
+
+
+def collider_table(
+    colliders: list[Collider], num_worlds: int, num_body_slots: int, device: wp.Device
+) -> tuple[K.Colliders, ColliderLayout]:
+    """The kernels' collider table, its rows grouped by world, and their layout. Poses are
+    left to the caller; the reaction tables (one row per body slot) are summed in integer
+    units of ``K.WRENCH_UNIT``, so their sums do not depend on the order of the atomics."""
+    order = sorted(range(len(colliders)), key=lambda i: colliders[i].world)
+    rows = [colliders[i] for i in order]
+    counts = [len(c.params) for c in rows]
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int) if rows else []
+    wstart = np.zeros(num_worlds, np.int32)
+    wend = np.zeros(num_worlds, np.int32)
+    for w in range(num_worlds):
+        idx = [k for k, c in enumerate(rows) if c.world == w]
+        wstart[w] = idx[0] if idx else 0
+        wend[w] = idx[-1] + 1 if idx else 0
+    bounds = np.array([collider_bound(c) for c in rows], float)
+    worlds = np.array([c.world for c in rows], int)
+
+    def ints(values: object) -> wp.array:
+        return wp.array(values, dtype=wp.int32, device=device)
+
+    table = K.Colliders()
+    table.world_start, table.world_end = ints(wstart), ints(wend)
+    table.kind = ints([c.kind for c in rows])
+    table.start, table.count = ints(starts), ints(counts)
+    table.mesh = wp.array(
+        [c.mesh.id if c.mesh is not None else 0 for c in rows], dtype=wp.uint64, device=device
+    )
+    flat = [c.params for c in rows]
+    table.params = wp.array(
+        np.concatenate(flat) if flat else np.zeros(1, np.float32), dtype=float, device=device
+    )
+    table.body = ints([c.body for c in rows])
+    table.bound = wp.array(bounds, dtype=float, device=device)
+    slots = max(num_body_slots, 1)
+    table.force = wp.zeros((slots, 3), dtype=wp.int64, device=device)
+    table.torque = wp.zeros((slots, 3), dtype=wp.int64, device=device)
+    layout = ColliderLayout(
+        order=np.array(order, dtype=np.intp),
+        bounds=bounds,
+        worlds=worlds,
+        world_first=np.flatnonzero(np.diff(worlds, prepend=-1)),
+    )
+    return table, layout

@@ -331,7 +331,7 @@ class ReactionLog:
 
     def record(self, k: int) -> None:
         """Keep the reaction table of the solver's last step as entry ``k`` (0-based)."""
-        table = self.solver.cols.force  # (slots, 3) in K.WRENCH_UNIT, rebuilt on upload
+        table = self.solver.buf.cols.force  # (slots, 3) in K.WRENCH_UNIT, rebuilt on upload
         if table is not self._table:
             self._table = table
             cpu = self._host_log is not None

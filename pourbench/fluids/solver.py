@@ -30,7 +30,6 @@ container's weight is the liquid's.
 
 from __future__ import annotations
 
-import math
 import operator
 import warnings
 from collections.abc import Callable
@@ -49,11 +48,13 @@ from pourbench.errors import (
 )
 from pourbench.fluids import kernels as K
 from pourbench.fluids import viscosity as V
+from pourbench.fluids.buffers import DeviceBuffers
 from pourbench.fluids.colliders import (
     KIND_NAMES,
     Collider,
+    ColliderLayout,
     check_sizes,
-    collider_bound,
+    collider_table,
     shape_kind,
 )
 from pourbench.fluids.config import (
@@ -79,6 +80,17 @@ against a wall carries its tip higher than the column stood (docs/contact.md).""
 
 OVERFLOW_CHECK_EVERY = 16
 """Steps between checks that no neighbour list is full (one small read-back each)."""
+
+LIQUID_PARAMETERS = (
+    "damping",
+    "dissipation",
+    "vorticity_confinement",
+    "cohesion",
+    "surface_tension",
+    "static_friction",
+    "dynamic_friction",
+)
+"""The FleX parameters of each world's liquid that the kernels read as they are."""
 
 
 def cuda_available() -> bool:
@@ -168,6 +180,14 @@ class PBFSolver:
         self.time = 0.0
         self.steps = 0
         self._capacity_warned = False
+        # set by _upload on the first step after a scene change
+        self.buf: DeviceBuffers | None = None
+        self._layout: ColliderLayout | None = None
+        self.viscosity: V.ImplicitViscosity | None = None
+        self._needs_curl = self._needs_curl_and_normals = False
+        self._cmds: dict[str, wp.Launch] = {}  # recorded launches, replayed (_launch)
+        self._graphs: dict[str, wp.Graph] = {}  # the recorded parts of a step, replayed
+        self._moved = False  # x_prev holds the start of a step whose end is x
 
     # ------------------------------------------------------------------ scene building
 
@@ -344,11 +364,12 @@ class PBFSolver:
     def _mark_dirty(self) -> None:
         """Pull the device state into the host copy, then flag a re-upload before the next
         step: host edits (particles, liquids, colliders) always start from the current state."""
+        b = self.buf
         if not self._dirty:
-            self._x = self.x.numpy().copy()
-            self._v = self.v.numpy().copy()
-            self._top = self.top.numpy().copy()
-            self._bottom = self.bottom.numpy().copy()
+            self._x = b.x.numpy().copy()
+            self._v = b.v.numpy().copy()
+            self._top = b.top.numpy().copy()
+            self._bottom = b.bottom.numpy().copy()
             self._dirty = True
 
     def step_fractions(self) -> dict[str, np.ndarray]:
@@ -390,144 +411,53 @@ class PBFSolver:
         return out
 
     def _upload(self) -> None:
-        dev, cfg = self.device, self.config
-        n = len(self._x)
-        self.n = n
-        f = lambda a, dt=wp.vec3: wp.array(a, dtype=dt, device=dev)  # noqa: E731
-        self.x = f(self._x)
-        self.v = f(self._v)
-        self.world = wp.array(self._world, dtype=wp.int32, device=dev)
-        self.top = wp.array(self._top, dtype=float, device=dev)
-        self.bottom = wp.array(self._bottom, dtype=float, device=dev)
-        for name in ("x_prev", "p", "p_sorted", "delta", "omega", "normal", "v_tmp", "eta"):
-            setattr(self, name, wp.zeros(n, dtype=wp.vec3, device=dev))
-        self.lam = wp.zeros(n, dtype=float, device=dev)
-        self.sums = wp.zeros(n, dtype=K.vec5, device=dev)
-        self.vsum = wp.zeros(n, dtype=wp.vec4, device=dev)
-        self.dv_sum = wp.zeros(n, dtype=wp.vec3, device=dev)
-        self.push = wp.zeros(n, dtype=float, device=dev)
-        self.clear = wp.zeros(n, dtype=float, device=dev)  # collider clearance (K.predict)
-        self.wall = wp.zeros(n, dtype=K.vec5, device=dev)  # nearest wall (K.predict)
-        self.wall_collider = wp.full(n, -1, dtype=wp.int32, device=dev)
-        self.density = wp.zeros(n, dtype=float, device=dev)
-        self.contacts = wp.zeros(n, dtype=wp.int32, device=dev)
-        self.order_keys = wp.zeros(2 * max(n, 1), dtype=wp.int64, device=dev)
-        self.order = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
-        # neighbour lists (layouts in pourbench.fluids.kernels): half lists are built with a
-        # fixed capacity per particle, then packed, and cache their pair terms; full lists are
-        # interleaved, written in place by the build (start[i] = i, stride n)
-        cap = max(n * cfg.max_neighbours, 1)
-        half = self.half_lists
-        self.nbr_build = wp.zeros(cap if half else 1, dtype=wp.int32, device=dev)
-        self.nbr_count = wp.zeros(n, dtype=wp.int32, device=dev)
-        start = np.zeros(n, np.int32) if half else np.arange(n, dtype=np.int32)
-        self.nbr_start = wp.array(start, dtype=wp.int32, device=dev)
-        self.nbr_stride = 1 if half else max(n, 1)
-        self.nbr = wp.zeros(cap, dtype=wp.int32, device=dev)
-        self.pair = wp.zeros(cap if half else 1, dtype=wp.vec2, device=dev)
-        self.world_sorted = wp.zeros(max(n, 1), dtype=wp.int32, device=dev)
-        # per-world liquid parameters
-        attrs = (
-            "damping",
-            "dissipation",
-            "vorticity_confinement",
-            "cohesion",
-            "surface_tension",
-            "static_friction",
-            "dynamic_friction",
-        )
-        values = {a: [getattr(liq, a) for liq in self.liquids] for a in attrs}
+        """Allocate the device buffers for the host scene and upload it."""
+        cfg = self.config
+        values = {a: [getattr(liq, a) for liq in self.liquids] for a in LIQUID_PARAMETERS}
         values.update(self.step_fractions())
-        self.params = {a: wp.array(v, dtype=float, device=dev) for a, v in values.items()}
+        table, self._layout = collider_table(
+            self.colliders, self.num_worlds, self.num_body_slots, self.device
+        )
+        self.buf = DeviceBuffers.allocate(
+            self.device,
+            cfg,
+            self.half_lists,
+            (self._x, self._v, self._world, self._top, self._bottom),
+            values,
+            [liq.density * cfg.spacing**3 for liq in self.liquids],
+            table,
+        )
         # curl feeds only vorticity confinement; colour-field normals only surface tension
         self._needs_curl = any(liq.vorticity_confinement > 0 for liq in self.liquids)
         self._needs_curl_and_normals = self._needs_curl or any(
             liq.surface_tension > 0 for liq in self.liquids
         )
-        self.mass = wp.array(
-            [liq.density * cfg.spacing**3 for liq in self.liquids], dtype=float, device=dev
-        )
-        self.viscosity: V.ImplicitViscosity | None = None
+        self.viscosity = None
         if any(liq.viscosity_pa_s for liq in self.liquids):
             c_w = [cfg.dt * (liq.viscosity_pa_s or 0.0) / liq.density for liq in self.liquids]
             sizes = np.bincount(self._world, minlength=self.num_worlds)
             self.viscosity = V.ImplicitViscosity(self, np.asarray(c_w), sizes)
-        # colliders, grouped by world
-        order = sorted(range(len(self.colliders)), key=lambda i: self.colliders[i].world)
-        self._col_order = np.array(order, dtype=np.intp)
-        cols = [self.colliders[i] for i in order]
-        starts, counts, flat = [], [], []
-        off = 0
-        for c in cols:
-            starts.append(off)
-            counts.append(len(c.params))
-            flat.append(c.params)
-            off += len(c.params)
-        wstart = np.zeros(self.num_worlds, np.int32)
-        wend = np.zeros(self.num_worlds, np.int32)
-        for w in range(self.num_worlds):
-            idx = [k for k, c in enumerate(cols) if c.world == w]
-            wstart[w] = idx[0] if idx else 0
-            wend[w] = idx[-1] + 1 if idx else 0
-        nb = max(self.num_body_slots, 1)
-        ints = lambda a: wp.array(a, dtype=wp.int32, device=dev)  # noqa: E731
-        self.cols = K.Colliders()
-        self.cols.world_start, self.cols.world_end = ints(wstart), ints(wend)
-        self.cols.kind = ints([c.kind for c in cols])
-        self.cols.start, self.cols.count = ints(starts), ints(counts)
-        self.cols.mesh = wp.array(
-            [c.mesh.id if c.mesh is not None else 0 for c in cols], dtype=wp.uint64, device=dev
-        )
-        self.cols.params = wp.array(
-            np.concatenate(flat) if flat else np.zeros(1, np.float32), dtype=float, device=dev
-        )
-        self.cols.body = ints([c.body for c in cols])
-        self._col_bounds = np.array([collider_bound(c) for c in cols], float)
-        self._col_worlds = np.array([c.world for c in cols], int)
-        # where each world's colliders begin in upload order (for _track_wall_speed)
-        self._world_first_col = np.flatnonzero(np.diff(self._col_worlds, prepend=-1))
-        self.cols.bound = wp.array(self._col_bounds, dtype=float, device=dev)
-        # reactions summed in integer units of K.WRENCH_UNIT (order-independent sums)
-        self.cols.force = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
-        self.cols.torque = wp.zeros((nb, 3), dtype=wp.int64, device=dev)
-        # spatial hash: buckets = next power of two ≥ 2n; sort buffers need 2n entries
-        buckets = 1 << max(10, math.ceil(math.log2(max(2 * n, 1))))
-        self.bucket_mask = buckets - 1
-        self.bucket_start = wp.zeros(buckets, dtype=wp.int32, device=dev)
-        self.bucket_end = wp.zeros(buckets, dtype=wp.int32, device=dev)
-        self.keys = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
-        self.sorted_idx = wp.zeros(2 * max(n, 1), dtype=wp.int32, device=dev)
-        self.cell = wp.zeros(max(n, 1), dtype=wp.vec3i, device=dev)
-        self.cell_sorted = wp.zeros(max(n, 1), dtype=wp.vec3i, device=dev)
         self._upload_poses(prev_too=True)
-        # per world: taking part in the step's iterations and with what share of a correction,
-        # extra iterations so far, and the largest density error of the last iteration (see
-        # SolverConfig.max_density_error)
-        self.active = wp.ones(self.num_worlds, dtype=wp.int32, device=dev)
-        self.share = wp.ones(self.num_worlds, dtype=float, device=dev)
-        self.extra = wp.zeros(self.num_worlds, dtype=float, device=dev)
-        self.worst = wp.zeros(self.num_worlds, dtype=float, device=dev)
-        self.any_active = wp.zeros(1, dtype=wp.int32, device=dev)
-        self._cmds: dict[str, wp.Launch] = {}
-        self._graphs: dict[str, wp.Graph] = {}  # the recorded parts of a step, replayed
-        self._moved = False  # x_prev holds the start of a step whose end is x
+        self._cmds = {}
+        self._graphs = {}
+        self._moved = False
         self._dirty = False
 
     def _upload_poses(self, prev_too: bool = False) -> None:
         """Copy the pose table to the device as the end-of-step poses (the start-of-step
         ones are the last step's end poses, copied when it finished; with ``prev_too`` both
         are set). Arrays are updated in place, so the recorded kernel launches stay valid."""
-        if len(self._col_order):
-            poses = self._pose_table[self._col_order].astype(np.float32)
-            coms = self._com_table[self._col_order].astype(np.float32)
+        if len(self._layout.order):
+            poses = self._pose_table[self._layout.order].astype(np.float32)
+            coms = self._com_table[self._layout.order].astype(np.float32)
         else:  # one placeholder collider that no world owns
             poses = np.array([[0, 0, 0, 0, 0, 0, 1]], np.float32)
             coms = np.zeros((1, 3), np.float32)
         last = self._uploaded_poses
-        if not prev_too and last is not None and last.shape == (len(self._col_bounds), 7):
+        if not prev_too and last is not None and last.shape == (len(self._layout.bounds), 7):
             self._track_wall_speed(last, poses)
         self._uploaded_poses = poses
-        c = self.cols
+        c = self.buf.cols
         if prev_too:
             c.pose = wp.array(poses, dtype=wp.transform, device=self.device)
             c.pose_prev = wp.clone(c.pose)
@@ -549,9 +479,9 @@ class PBFSolver:
         d = end[:, :3] - start[:, :3]
         move = np.sqrt(np.einsum("ij,ij->i", d, d))
         cos_half = np.minimum(np.abs(np.einsum("ij,ij->i", end[:, 3:], start[:, 3:])), 1.0)
-        turn = 2.0 * np.arccos(cos_half) * self._col_bounds
-        fastest = np.maximum.reduceat((move + turn) / self.config.dt, self._world_first_col)
-        owners = self._col_worlds[self._world_first_col]
+        turn = 2.0 * np.arccos(cos_half) * self._layout.bounds
+        fastest = np.maximum.reduceat((move + turn) / self.config.dt, self._layout.world_first)
+        owners = self._layout.worlds[self._layout.world_first]
         self._wall_speed[owners] = np.maximum(self._wall_speed[owners], fastest)
 
     def _collider_indices(self, indices: object) -> np.ndarray:
@@ -630,7 +560,7 @@ class PBFSolver:
         if cmd is None:
             cmd = wp.launch(
                 kernel,
-                self.n if dim is None else dim,
+                self.buf.n if dim is None else dim,
                 inputs=inputs,
                 outputs=outputs or [],
                 device=self.device,
@@ -645,22 +575,21 @@ class PBFSolver:
         Worlds stay contiguous and each world's particles keep an order that depends only on
         that world, so batched and single-world runs stay identical.
         """
+        b = self.buf
         self._launch(
             "order_keys",
             K.order_keys,
-            [self.x, self.world, 1.0 / self.config.h],
-            [self.order_keys, self.order],
+            [b.x, b.world, 1.0 / self.config.h],
+            [b.order_keys, b.order],
         )
         # keys: world above 33 Morton bits; sorting only the bits in use is several times faster
         key_bits = 33 + max(1, (self.num_worlds - 1).bit_length())
-        wp.utils.radix_sort_pairs(self.order_keys, self.order, self.n, end_bit=key_bits)
-        self._launch(
-            "gather_state", K.gather_state, [self.order, self.x, self.v, self.p, self.v_tmp]
-        )
-        self._launch("copy_state", K.copy_state, [self.p, self.v_tmp, self.x, self.v])
+        wp.utils.radix_sort_pairs(b.order_keys, b.order, b.n, end_bit=key_bits)
+        self._launch("gather_state", K.gather_state, [b.order, b.x, b.v, b.p, b.v_tmp])
+        self._launch("copy_state", K.copy_state, [b.p, b.v_tmp, b.x, b.v])
 
     def _step_once(self) -> None:
-        cfg, n = self.config, self.n
+        cfg, n = self.config, self.buf.n
         # on CUDA the step's sorts allocate scratch memory, which a graph holds only from a pool
         graphs = cfg.graph and (self.device.is_cpu or wp.is_mempool_enabled(self.device))
         if self._poses_pending:
@@ -674,7 +603,7 @@ class PBFSolver:
             return
         self._run("start", self._step_start, graphs)
         for _ in range(cfg.max_iterations - cfg.iterations):
-            if not self.any_active.numpy()[0]:  # on CUDA a 4-byte read-back
+            if not self.buf.any_active.numpy()[0]:  # on CUDA a 4-byte read-back
                 break
             self._run("extra", self._extra_iteration, graphs)
         self._run("end", self._step_end, graphs)
@@ -703,38 +632,39 @@ class PBFSolver:
     def iterations_used(self) -> np.ndarray:
         """Per world, the density iterations of the last step: ``iterations`` plus the shares
         of the extra ones ``max_density_error`` called for (a float)."""
-        extra = np.zeros(self.num_worlds) if self._dirty else self.extra.numpy()
+        extra = np.zeros(self.num_worlds) if self._dirty else self.buf.extra.numpy()
         return self.config.iterations + extra
 
     def _step_start(self) -> None:
         """Predict, list neighbours, and every world's first ``iterations`` iterations."""
+        b = self.buf
         cfg = self.config
         self._launch(
             "start_worlds",
             K.start_worlds,
             [],
-            [self.active, self.share, self.extra],
+            [b.active, b.share, b.extra],
             self.num_worlds,
         )
-        self.cols.force.zero_()
-        self.cols.torque.zero_()
-        self.push.zero_()
-        P = self.params
+        b.cols.force.zero_()
+        b.cols.torque.zero_()
+        b.push.zero_()
+        P = b.params
         self._launch(
             "predict",
             K.predict,
             [
-                self.x,
-                self.v,
-                self.world,
+                b.x,
+                b.v,
+                b.world,
                 P["damping"],
                 wp.vec3(*cfg.gravity),
                 cfg.dt,
-                self.cols,
+                b.cols,
                 cfg.radius,
                 cfg.h,
             ],
-            [self.x_prev, self.p, self.clear, self.wall, self.wall_collider],
+            [b.x_prev, b.p, b.clear, b.wall, b.wall_collider],
         )
         self._build_neighbours()
         for _ in range(cfg.iterations):
@@ -748,12 +678,13 @@ class PBFSolver:
         self._update_active()
 
     def _update_active(self) -> None:
-        self.any_active.zero_()
+        b = self.buf
+        b.any_active.zero_()
         self._launch(
             "update_active",
             K.update_active,
-            [self.worst, self.config.max_density_error],
-            [self.active, self.share, self.extra, self.any_active],
+            [b.worst, self.config.max_density_error],
+            [b.active, b.share, b.extra, b.any_active],
             self.num_worlds,
         )
 
@@ -761,106 +692,108 @@ class PBFSolver:
         """One Jacobi iteration of the density constraints (worlds not ``active`` skip it).
         An ``extra`` one (past ``iterations``) leaves out the tensile term s_corr, so that the
         artificial pressure a step applies does not grow with the iterations it takes."""
+        b = self.buf
         cfg = self.config
         tag = "_extra" if extra else ""
         scorr = wp.vec4(0.0, 4.0, 1.0, 0.0) if extra else self.scorr
-        self.worst.zero_()
+        b.worst.zero_()
         self._launch(
             "density_sums" + tag,
             self.pairk.density_sums,
             [
-                self.p,
-                self.nbr,
-                self.nbr_start,
-                self.nbr_count,
-                self.nbr_stride,
+                b.p,
+                b.nbr,
+                b.nbr_start,
+                b.nbr_count,
+                b.nbr_stride,
                 cfg.h,
                 self.grad_c,
                 scorr,
                 self.w0,
                 self.eps,
-                self.wall,
+                b.wall,
                 self.wall_coef,
-                self.world,
-                self.active,
+                b.world,
+                b.active,
             ],
-            [self.sums, self.pair, self.lam, self.density, self.worst],
+            [b.sums, b.pair, b.lam, b.density, b.worst],
         )
         if self.half_lists:  # full lists compute λ in the density pass
             self._launch(
                 "compute_lambda" + tag,
                 K.compute_lambda,
                 [
-                    self.sums,
-                    self.p,
-                    self.wall,
+                    b.sums,
+                    b.p,
+                    b.wall,
                     self.wall_coef,
                     cfg.h,
                     self.w0,
                     self.eps,
-                    self.world,
-                    self.active,
+                    b.world,
+                    b.active,
                 ],
-                [self.lam, self.density, self.worst],
+                [b.lam, b.density, b.worst],
             )
         self._launch(
             "compute_delta" + tag,
             self.pairk.compute_delta,
             [
-                self.p,
-                self.nbr,
-                self.nbr_start,
-                self.nbr_count,
-                self.nbr_stride,
-                self.lam,
-                self.density,
-                self.pair,
+                b.p,
+                b.nbr,
+                b.nbr_start,
+                b.nbr_count,
+                b.nbr_stride,
+                b.lam,
+                b.density,
+                b.pair,
                 cfg.h,
                 self.grad_c,
                 scorr,
                 self.surface_band,
-                self.world,
-                self.active,
+                b.world,
+                b.active,
             ],
-            [self.delta],
+            [b.delta],
         )
         self._launch(
             "apply_delta" + tag,
             K.apply_delta,
             [
-                self.p,
-                self.delta,
+                b.p,
+                b.delta,
                 cfg.sor,
-                self.world,
-                self.cols,
-                self.mass,
+                b.world,
+                b.cols,
+                b.mass,
                 cfg.radius,
                 cfg.dt,
-                self.lam,
-                self.wall,
-                self.wall_collider,
+                b.lam,
+                b.wall,
+                b.wall_collider,
                 self.wall_coef,
                 cfg.h,
                 self.w0,
-                self.active,
-                self.share,
+                b.active,
+                b.share,
             ],
-            [self.push, self.clear],
+            [b.push, b.clear],
         )
 
     def _step_end(self) -> None:
         """Swept collision, velocity update and the velocity filters."""
+        b = self.buf
         cfg = self.config
-        P = self.params
+        P = b.params
         self._launch(
             "collide",
             K.collide,
             [
-                self.p,
-                self.x_prev,
-                self.world,
-                self.cols,
-                self.mass,
+                b.p,
+                b.x_prev,
+                b.world,
+                b.cols,
+                b.mass,
                 P["static_friction"],
                 P["dynamic_friction"],
                 P["adhesion_grip"],
@@ -868,55 +801,55 @@ class PBFSolver:
                 cfg.adhesion_range,
                 P["adhesion_frac"],
                 cfg.dt,
-                self.clear,
+                b.clear,
             ],
-            [self.push, self.contacts],
+            [b.push, b.contacts],
         )
         self._launch(
             "update_velocity",
             K.update_velocity,
             [
-                self.p,
-                self.x_prev,
-                self.contacts,
-                self.world,
+                b.p,
+                b.x_prev,
+                b.contacts,
+                b.world,
                 P["dissipation"],
                 cfg.sleep_threshold,
                 cfg.dt,
                 wp.vec3(*self._up),
             ],
-            [self.v, self.x, self.top, self.bottom],
+            [b.v, b.x, b.top, b.bottom],
         )
         if self._needs_curl_and_normals:
             self._launch(
                 "vorticity_and_normals",
                 self.pairk.vorticity_and_normals,
                 [
-                    self.x,
-                    self.v,
-                    self.nbr,
-                    self.nbr_start,
-                    self.nbr_count,
-                    self.nbr_stride,
+                    b.x,
+                    b.v,
+                    b.nbr,
+                    b.nbr_start,
+                    b.nbr_count,
+                    b.nbr_stride,
                     cfg.h,
                     self.grad_c,
                     int(self._needs_curl),
                 ],
-                [self.omega, self.normal],
+                [b.omega, b.normal],
             )
         self._launch(
             "filter_sums",
             self.pairk.filter_sums,
             [
-                self.x,
-                self.v,
-                self.omega,
-                self.normal,
-                self.nbr,
-                self.nbr_start,
-                self.nbr_count,
-                self.nbr_stride,
-                self.world,
+                b.x,
+                b.v,
+                b.omega,
+                b.normal,
+                b.nbr,
+                b.nbr_start,
+                b.nbr_count,
+                b.nbr_stride,
+                b.world,
                 P["vorticity_confinement"],
                 P["cohesion"],
                 P["surface_tension"],
@@ -930,36 +863,36 @@ class PBFSolver:
                 self.coh_norm,
                 self.curv_norm,
             ],
-            [self.vsum, self.eta, self.dv_sum],
+            [b.vsum, b.eta, b.dv_sum],
         )
         self._launch(
             "apply_filters",
             K.apply_filters,
             [
-                self.world,
+                b.world,
                 P["viscosity_frac"],
                 P["vorticity_confinement"],
                 cfg.dt,
                 cfg.h,
-                self.vsum,
-                self.eta,
-                self.dv_sum,
-                self.omega,
-                self.normal,
+                b.vsum,
+                b.eta,
+                b.dv_sum,
+                b.omega,
+                b.normal,
             ],
-            [self.v],
+            [b.v],
         )
         if self.viscosity is not None:
             self.viscosity.start()
         # next step's start-of-step collider poses are this step's end poses
-        wp.copy(self.cols.pose_prev, self.cols.pose)
+        wp.copy(b.cols.pose_prev, b.cols.pose)
 
     def _check_list_capacity(self) -> None:
         """Warn (once per solver) when a neighbour list filled up: the pairs beyond
         ``max_neighbours`` were dropped, so that particle's density is underestimated."""
         if self._capacity_warned:
             return
-        fullest = int(self.nbr_count.numpy().max())
+        fullest = int(self.buf.nbr_count.numpy().max())
         if fullest >= self.config.max_neighbours:
             self._capacity_warned = True
             warnings.warn(
@@ -971,60 +904,61 @@ class PBFSolver:
 
     def _build_neighbours(self) -> None:
         """Hash particles by (world, cell), sort the buckets, and list neighbours within h."""
-        cfg, n = self.config, self.n
+        b = self.buf
+        cfg, n = self.config, b.n
         inv_cell = 1.0 / cfg.h
         self._launch(
             "hash_particles",
             self.pairk.hash_particles,
-            [self.p, self.world, inv_cell, self.bucket_mask],
-            [self.cell, self.keys, self.sorted_idx],
+            [b.p, b.world, inv_cell, b.bucket_mask],
+            [b.cell, b.keys, b.sorted_idx],
         )
         # bucket keys are below the table size, a power of two: sort only those bits
         wp.utils.radix_sort_pairs(
-            self.keys, self.sorted_idx, n, end_bit=(self.bucket_mask + 1).bit_length() - 1
+            b.keys, b.sorted_idx, n, end_bit=(b.bucket_mask + 1).bit_length() - 1
         )
-        self.bucket_start.zero_()
-        self.bucket_end.zero_()
+        b.bucket_start.zero_()
+        b.bucket_end.zero_()
         self._launch(
             "bucket_ranges",
             K.bucket_ranges,
-            [self.keys, self.sorted_idx, self.p, self.world, self.cell, n],
+            [b.keys, b.sorted_idx, b.p, b.world, b.cell, n],
             [
-                self.bucket_start,
-                self.bucket_end,
-                self.p_sorted,
-                self.world_sorted,
-                self.cell_sorted,
+                b.bucket_start,
+                b.bucket_end,
+                b.p_sorted,
+                b.world_sorted,
+                b.cell_sorted,
             ],
         )
         self._launch(
             "build_neighbours",
             self.pairk.build_neighbours,
             [
-                self.p,
-                self.world,
-                self.cell,
-                self.sorted_idx,
-                self.p_sorted,
-                self.world_sorted,
-                self.cell_sorted,
-                self.bucket_start,
-                self.bucket_end,
-                self.bucket_mask,
+                b.p,
+                b.world,
+                b.cell,
+                b.sorted_idx,
+                b.p_sorted,
+                b.world_sorted,
+                b.cell_sorted,
+                b.bucket_start,
+                b.bucket_end,
+                b.bucket_mask,
                 cfg.h,
                 cfg.max_neighbours,
                 cfg.max_neighbours if self.half_lists else 1,
                 0,
             ],
-            [self.nbr_build if self.half_lists else self.nbr, self.nbr_count],
+            [b.nbr_build if self.half_lists else b.nbr, b.nbr_count],
         )
         if self.half_lists:
-            wp.utils.array_scan(self.nbr_count, self.nbr_start, inclusive=False)
+            wp.utils.array_scan(b.nbr_count, b.nbr_start, inclusive=False)
             self._launch(
                 "pack_neighbours",
                 K.pack_neighbours,
-                [self.nbr_build, cfg.max_neighbours, self.nbr_count, self.nbr_start],
-                [self.nbr],
+                [b.nbr_build, cfg.max_neighbours, b.nbr_count, b.nbr_start],
+                [b.nbr],
             )
 
     def _advance_clock(self) -> None:
@@ -1035,11 +969,11 @@ class PBFSolver:
 
     @property
     def num_particles(self) -> int:
-        return len(self._x) if self._dirty else self.n
+        return len(self._x) if self._dirty else self.buf.n
 
     def positions(self) -> np.ndarray:
         """All particle positions (n, 3), m, grouped by world."""
-        return self._x.copy() if self._dirty else self.x.numpy().copy()
+        return self._x.copy() if self._dirty else self.buf.x.numpy().copy()
 
     def velocities(self) -> np.ndarray:
         """All particle velocities (n, 3), m/s: each particle's displacement over the last step
@@ -1053,11 +987,12 @@ class PBFSolver:
         (docs/rest.md). Before the first step after a scene change, the velocities the
         particles carry into it (as given to :meth:`add_particles`).
         """
+        b = self.buf
         if self._dirty:
             return self._v.copy()
         if not self._moved:
-            return self.v.numpy().copy()
-        return (self.x.numpy() - self.x_prev.numpy()) / np.float32(self.config.dt)
+            return b.v.numpy().copy()
+        return (b.x.numpy() - b.x_prev.numpy()) / np.float32(self.config.dt)
 
     def worlds(self) -> np.ndarray:
         """World index of every particle."""
@@ -1073,7 +1008,7 @@ class PBFSolver:
                 wp.array(self._x, dtype=wp.vec3, device=dev),
                 wp.array(self._world, dtype=wp.int32, device=dev),
             )
-        return self.x, self.world
+        return self.buf.x, self.buf.world
 
     def world_slice(self, world: int) -> slice:
         """Index range of ``world``'s particles in :meth:`positions`."""
@@ -1089,26 +1024,28 @@ class PBFSolver:
 
     def densities(self) -> np.ndarray:
         """Last computed density of every particle over the rest density (1 = at rest)."""
-        return self.density.numpy().copy() if not self._dirty else np.ones(len(self._x))
+        return self.buf.density.numpy().copy() if not self._dirty else np.ones(len(self._x))
 
     def neighbour_counts(self) -> np.ndarray:
         """Neighbours (within h) of every particle at the last step, counting both sides of
         each listed pair."""
+        b = self.buf
         if self._dirty:
             return np.zeros(len(self._x), np.int32)
-        count = self.nbr_count.numpy()
+        count = b.nbr_count.numpy()
         if not self.half_lists:
             return count.copy()
-        listed = self.nbr.numpy()[: int(count.sum())]  # half lists are packed back to back
-        return (count + np.bincount(listed, minlength=self.n)).astype(np.int32)
+        listed = b.nbr.numpy()[: int(count.sum())]  # half lists are packed back to back
+        return (count + np.bincount(listed, minlength=b.n)).astype(np.int32)
 
     def neighbour_lists(self) -> list[np.ndarray]:
         """Particle indices listed by each particle at the last neighbour build (half lists:
         each pair once, by one of its particles; full lists: all neighbours)."""
-        if self._dirty or self.n == 0:
+        b = self.buf
+        if self._dirty or b.n == 0:
             return [np.zeros(0, np.int32) for _ in range(len(self._x))]
-        count, start = self.nbr_count.numpy(), self.nbr_start.numpy()
-        nbr, stride = self.nbr.numpy(), self.nbr_stride
+        count, start = b.nbr_count.numpy(), b.nbr_start.numpy()
+        nbr, stride = b.nbr.numpy(), b.nbr_stride
         return [nbr[s : s + c * stride : stride].copy() for s, c in zip(start, count, strict=True)]
 
     def density_error(self, world: int | None = None) -> float:
@@ -1135,8 +1072,8 @@ class PBFSolver:
             z = np.zeros((self.num_body_slots, 3))
             return z, z.copy()
         unit = float(K.WRENCH_UNIT)
-        f = self.cols.force.numpy()[: self.num_body_slots] * unit
-        t = self.cols.torque.numpy()[: self.num_body_slots] * unit
+        f = self.buf.cols.force.numpy()[: self.num_body_slots] * unit
+        t = self.buf.cols.torque.numpy()[: self.num_body_slots] * unit
         return f, t
 
     def body_drag(self) -> np.ndarray:
@@ -1193,6 +1130,7 @@ class PBFSolver:
         its speed), all since the world's particles were added and tracked every step;
         v_rest, half a spacing per step, is the scale of the solver's own rearrangements.
         """
+        b = self.buf
         cfg, dev = self.config, self.device
         if self.num_particles == 0:
             return np.zeros(self.num_worlds, bool)
@@ -1202,8 +1140,8 @@ class PBFSolver:
             v, from_start = wp.array(self._v, dtype=wp.vec3, device=dev), 0
             top, bottom = f(self._top), f(self._bottom)
         else:
-            top, bottom = self.top, self.bottom
-            v, from_start = (self.x_prev, 1) if self._moved else (self.v, 0)
+            top, bottom = b.top, b.bottom
+            v, from_start = (b.x_prev, 1) if self._moved else (b.v, 0)
         wall_speed, flags = self._diverged_args
         wall_speed.assign(self._wall_speed.astype(np.float32))
         flags.zero_()

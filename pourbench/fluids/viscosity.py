@@ -610,7 +610,7 @@ class ImplicitViscosity:
     :meth:`finish`."""
 
     def __init__(self, solver, c_w: np.ndarray, world_sizes: np.ndarray) -> None:
-        dev, n = solver.device, solver.n
+        dev, n = solver.device, solver.buf.n
         self.solver = solver
         self.kernels = HALF_LISTS if solver.half_lists else FULL_LISTS
         cfg = solver.config
@@ -623,7 +623,7 @@ class ImplicitViscosity:
         self.chunk_world = wp.array(owner, dtype=wp.int32, device=dev)
         self.world_chunks = wp.array(first, dtype=wp.int32, device=dev)
         self.num_chunks = len(owner)
-        self.u = wp.zeros(len(solver.nbr), dtype=wp.vec3, device=dev)
+        self.u = wp.zeros(len(solver.buf.nbr), dtype=wp.vec3, device=dev)
         self.diag = wp.zeros(n, dtype=wp.mat33, device=dev)
         self.inv_m = wp.zeros(n, dtype=wp.mat33, device=dev)
         self.wall_t = wp.zeros(n, dtype=wp.vec2, device=dev)
@@ -641,22 +641,24 @@ class ImplicitViscosity:
 
     def _matvec(self, key: str, y: wp.array, active: wp.array) -> None:
         s = self.solver
+        b = s.buf
         s._launch(
             key,
             self.kernels.matvec,
-            [y, s.nbr, s.nbr_start, s.nbr_count, s.nbr_stride, s.world, active, self.u],
+            [y, b.nbr, b.nbr_start, b.nbr_count, b.nbr_stride, b.world, active, self.u],
             [self.lap],
         )
 
     def start(self) -> None:
         """Pair weights, preconditioner, right-hand side, and the first residual."""
         s, cfg = self.solver, self.solver.config
+        b = s.buf
         d_min = 0.5 * cfg.radius  # a particle is never nearer a wall than its radius less a bit
         s._launch(
             "visc_setup",
             self.kernels.setup,
             [
-                *(s.x, s.nbr, s.nbr_start, s.nbr_count, s.nbr_stride, s.world),
+                *(b.x, b.nbr, b.nbr_start, b.nbr_count, b.nbr_stride, b.world),
                 self.c_w,
                 cfg.h,
                 self.coef,
@@ -666,7 +668,7 @@ class ImplicitViscosity:
         s._launch(
             "visc_start",
             start,
-            [s.x, s.v, s.world, self.c_w, s.wall, s.wall_collider, s.cols, cfg.h, d_min, cfg.dt],
+            [b.x, b.v, b.world, self.c_w, b.wall, b.wall_collider, b.cols, cfg.h, d_min, cfg.dt],
             [self.diag, self.wall_t, self.v_wall, self.rhs, self.sol, self.inv_m],
         )
         # every viscous world takes part in the first product (c_w > 0 marks them)
@@ -675,7 +677,7 @@ class ImplicitViscosity:
         s._launch(
             "visc_residual",
             residual,
-            [self.chunk_start, self.chunk_world, self.c_w, s.wall, self.wall_t, self.inv_m],
+            [self.chunk_start, self.chunk_world, self.c_w, b.wall, self.wall_t, self.inv_m],
             [self.rhs, self.sol, self.lap, self.res, self.z, self.direction, self.partial],
             self.num_chunks,
         )
@@ -695,7 +697,7 @@ class ImplicitViscosity:
         s._launch(
             "visc_project",
             project,
-            [self.chunk_start, self.chunk_world, self.active, self.c_w, s.wall, self.wall_t],
+            [self.chunk_start, self.chunk_world, self.active, self.c_w, s.buf.wall, self.wall_t],
             [self.direction, self.lap, self.q, self.partial],
             self.num_chunks,
         )
@@ -727,41 +729,44 @@ class ImplicitViscosity:
             [self.rz, self.beta, self.active, self.iterations, self.any_active],
             s.num_worlds,
         )
-        s._launch("visc_turn", turn, [s.world, self.active, self.beta, self.z], [self.direction])
+        turn_inputs = [s.buf.world, self.active, self.beta, self.z]
+        s._launch("visc_turn", turn, turn_inputs, [self.direction])
 
     def finish(self) -> None:
         """The solved velocities, and the walls' viscous reactions on their bodies."""
         s, cfg = self.solver, self.solver.config
+        b = s.buf
         s._launch(
             "visc_finish",
             finish,
             [
-                s.world,
+                b.world,
                 self.c_w,
-                s.mass,
+                b.mass,
                 cfg.dt,
-                s.x,
-                s.wall,
-                s.wall_collider,
+                b.x,
+                b.wall,
+                b.wall_collider,
                 self.wall_t,
                 self.v_wall,
                 self.sol,
-                s.cols,
+                b.cols,
             ],
-            [s.v],
+            [b.v],
         )
 
     def body_drag(self) -> np.ndarray:
         """(slots, DRAG_ENTRIES) of the last solve (:func:`body_drag`), N·s/m and kin: run on
         demand, so a step whose caller never asks pays nothing for it."""
         s, cfg = self.solver, self.solver.config
+        b = s.buf
         self.drag.zero_()
         s._launch(
             "visc_drag",
             body_drag,
             [
-                *(s.world, self.c_w, s.mass, cfg.dt, s.x, s.wall, s.wall_collider),
-                *(self.wall_t, self.inv_m, s.cols),
+                *(b.world, self.c_w, b.mass, cfg.dt, b.x, b.wall, b.wall_collider),
+                *(self.wall_t, self.inv_m, b.cols),
             ],
             [self.drag],
         )
