@@ -188,13 +188,13 @@ def test_the_step_profile_accounts_for_the_whole_step_and_unwraps() -> None:
     import warp as wp
 
     from pourbench.bench import env_profile
-    from pourbench.fluids.solver import PBFSolver
+    from pourbench.fluids.step import StepLaunches
 
-    launch, capture_launch = PBFSolver._launch, wp.capture_launch
+    launch, capture_launch = StepLaunches.launch, wp.capture_launch
     parts, facts = env_profile.step_parts(1, 3)
     assert sum(parts.values()) == pytest.approx(facts["ms_per_env_step"], rel=1e-6)
     assert parts["solver kernels (graph replays)"] > 0.5 * facts["ms_per_env_step"]
     kernels = env_profile.kernel_times(1, 2)
     assert kernels["predict"][1] == kernels["collide"][1] == 12.0  # once a substep
     assert kernels["density_sums"][1] == 36.0  # three iterations a substep
-    assert PBFSolver._launch is launch and wp.capture_launch is capture_launch
+    assert StepLaunches.launch is launch and wp.capture_launch is capture_launch

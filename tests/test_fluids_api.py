@@ -440,7 +440,7 @@ def test_half_neighbour_lists_hold_every_pair_once() -> None:
         c = s.add_container(w, cup(0.04, 0.08))
         s.fill(w, c, 60.0 + 40.0 * w, "water")
     s.step(5)
-    s._build_neighbours()  # lists of the current positions (the step builds them on p)
+    s.launches.build_neighbours()  # lists of the current positions (the step builds them on p)
     p = s.buf.p.numpy()
     listed = [(min(i, j), max(i, j)) for i, js in enumerate(s.neighbour_lists()) for j in js]
     assert len(listed) == len(set(listed))  # no pair twice
@@ -466,7 +466,7 @@ def test_full_neighbour_lists_hold_every_neighbour() -> None:
         s.add_collider(w, "plane", [0.0])
         s.fill(w, s.add_container(w, cup(0.04, 0.08)), 50.0 + 30.0 * w, "water")
     s.step(5)
-    s._build_neighbours()
+    s.launches.build_neighbours()
     p, lists = s.buf.p.numpy(), s.neighbour_lists()
     assert all(len(js) == len(set(js.tolist())) and i not in js for i, js in enumerate(lists))
     listed = {(i, int(j)) for i, js in enumerate(lists) for j in js}

@@ -139,14 +139,14 @@ def kernel_times(worlds: int, steps: int) -> dict[str, tuple[float, float]]:
     environment step), graphs off."""
     import warp as wp
 
-    from pourbench.fluids import solver
+    from pourbench.fluids import step
 
     env, _, action = _make(worlds, graph=False)
     for _ in range(2):
         env.step(action)
     seconds: dict[str, float] = collections.defaultdict(float)
     calls: Counter = collections.Counter()
-    launch = solver.PBFSolver._launch
+    launch = step.StepLaunches.launch
 
     def timed_launch(self: Any, key: str, *args: Any, **kwargs: Any) -> None:
         t0 = time.perf_counter()
@@ -155,12 +155,12 @@ def kernel_times(worlds: int, steps: int) -> dict[str, tuple[float, float]]:
         calls[key] += 1
 
     sort_scan = {name: (wp.utils, name) for name in ("radix_sort_pairs", "array_scan")}
-    solver.PBFSolver._launch = timed_launch
+    step.StepLaunches.launch = timed_launch
     try:
         with timed(sort_scan) as (sec, n):
             _run(env, action, steps, worlds == 1)
     finally:
-        solver.PBFSolver._launch = launch
+        step.StepLaunches.launch = launch
     env.close()
     seconds.update(sec)
     calls.update(n)

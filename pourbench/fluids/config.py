@@ -196,6 +196,57 @@ class SolverConfig:
         return 0.5 * self.spacing
 
 
+@dataclass(frozen=True)
+class DensityConstants:
+    """What the density constraint and the surface forces derive from a :class:`SolverConfig`.
+
+    Attributes:
+        w0, grad_c: the rest sums (:func:`rest_sums`).
+        eps: constraint-force mixing ε, ``relaxation`` × the full neighbourhood's Σ|∇C|², 1/m².
+        wall_coef: the wall term's coefficient (:func:`wall_coef`).
+        scorr: the tensile term's (k, n, (h² − Δq²)³, offset c). λ carries units of m² here
+            (C is dimensionless, ∇C is 1/m), so Macklin & Müller's dimensionless k is scaled by
+            the rest neighbourhood's 1/Σ|∇C|²; c is :func:`scorr_offset`.
+        surface_band: 1 − ρ/ρ0 of a particle in a flat free surface
+            (:func:`flat_surface_density`).
+        coh_norm, curv_norm: :func:`surface_norms`.
+        lattice_neighbours: neighbours within h of a particle in a full cubic lattice.
+    """
+
+    w0: float
+    grad_c: float
+    eps: float
+    wall_coef: float
+    scorr: tuple[float, float, float, float]
+    surface_band: float
+    coh_norm: float
+    curv_norm: float
+    lattice_neighbours: int
+
+    @classmethod
+    def from_config(cls, cfg: SolverConfig) -> DensityConstants:
+        w0, grad_c, sum_grad2 = rest_sums(cfg)
+        dq = cfg.scorr_dq * cfg.h
+        coh_norm, curv_norm = surface_norms(cfg, grad_c)
+        dist = np.linalg.norm(lattice(cfg), axis=1)
+        return cls(
+            w0=w0,
+            grad_c=grad_c,
+            eps=cfg.relaxation * sum_grad2,
+            wall_coef=wall_coef(cfg),
+            scorr=(
+                cfg.scorr_k / sum_grad2,
+                cfg.scorr_n,
+                (cfg.h**2 - dq * dq) ** 3,
+                scorr_offset(cfg),
+            ),
+            surface_band=1.0 - flat_surface_density(cfg),
+            coh_norm=coh_norm,
+            curv_norm=curv_norm,
+            lattice_neighbours=int(np.count_nonzero((dist > 0) & (dist < cfg.h))),
+        )
+
+
 def rest_sums(cfg: SolverConfig) -> tuple[float, float, float]:
     """Rest sums of the density constraint, from a particle in a full cubic lattice of
     ``spacing`` (the kernel sum scaled by ``rest_packing``).

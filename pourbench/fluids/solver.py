@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import operator
 import warnings
-from collections.abc import Callable
 
 import numpy as np
 import warp as wp
@@ -57,17 +56,10 @@ from pourbench.fluids.colliders import (
     collider_table,
     shape_kind,
 )
-from pourbench.fluids.config import (
-    SolverConfig,
-    flat_surface_density,
-    lattice,
-    rest_sums,
-    scorr_offset,
-    surface_norms,
-    wall_coef,
-)
+from pourbench.fluids.config import DensityConstants, SolverConfig
 from pourbench.fluids.meshes import check_closed_mesh
 from pourbench.fluids.params import LiquidProfile, liquid_profile
+from pourbench.fluids.step import StepLaunches
 from pourbench.geometry.fill import container_lattice
 from pourbench.geometry.rotation import transform_points
 from pourbench.geometry.shapes import BoxShell, ContainerShape, RevolvedShell
@@ -134,23 +126,7 @@ class PBFSolver:
         if mode == "auto":
             mode = "full" if self.device.is_cuda else "half"
         self.half_lists = mode == "half"
-        self.pairk = K.HALF_LISTS if self.half_lists else K.FULL_LISTS
-        self.w0, self.grad_c, sum_grad2 = rest_sums(self.config)
-        self.wall_coef = wall_coef(self.config)
-        lat = np.linalg.norm(lattice(self.config), axis=1)
-        self.lattice_neighbours = int(np.count_nonzero((lat > 0) & (lat < self.config.h)))
-        self.coh_norm, self.curv_norm = surface_norms(self.config, self.grad_c)
-        self.eps = self.config.relaxation * sum_grad2
-        # λ carries units of m² here (C is dimensionless, ∇C is 1/m), so the dimensionless
-        # s_corr of Macklin & Müller is scaled by the rest neighbourhood's 1/Σ|∇C|².
-        dq = self.config.scorr_dq * self.config.h
-        self.scorr = wp.vec4(
-            self.config.scorr_k / sum_grad2,
-            self.config.scorr_n,
-            (self.config.h**2 - dq * dq) ** 3,
-            scorr_offset(self.config),
-        )
-        self.surface_band = 1.0 - flat_surface_density(self.config)
+        self.constants = DensityConstants.from_config(self.config)
         self.liquids: list[LiquidProfile] = [liquid_profile("water")] * self.num_worlds
         self.colliders: list[Collider] = []
         self.num_body_slots = 0
@@ -185,8 +161,7 @@ class PBFSolver:
         self._layout: ColliderLayout | None = None
         self.viscosity: V.ImplicitViscosity | None = None
         self._needs_curl = self._needs_curl_and_normals = False
-        self._cmds: dict[str, wp.Launch] = {}  # recorded launches, replayed (_launch)
-        self._graphs: dict[str, wp.Graph] = {}  # the recorded parts of a step, replayed
+        self.launches: StepLaunches | None = None  # the step's kernel launches
         self._moved = False  # x_prev holds the start of a step whose end is x
 
     # ------------------------------------------------------------------ scene building
@@ -432,14 +407,24 @@ class PBFSolver:
         self._needs_curl_and_normals = self._needs_curl or any(
             liq.surface_tension > 0 for liq in self.liquids
         )
+        self.launches = StepLaunches(
+            cfg,
+            self.device,
+            self.constants,
+            self.half_lists,
+            self.buf,
+            self._up,
+            self.num_worlds,
+            self._needs_curl,
+            self._needs_curl_and_normals,
+        )
         self.viscosity = None
         if any(liq.viscosity_pa_s for liq in self.liquids):
             c_w = [cfg.dt * (liq.viscosity_pa_s or 0.0) / liq.density for liq in self.liquids]
             sizes = np.bincount(self._world, minlength=self.num_worlds)
             self.viscosity = V.ImplicitViscosity(self, np.asarray(c_w), sizes)
+        self.launches.viscosity = self.viscosity
         self._upload_poses(prev_too=True)
-        self._cmds = {}
-        self._graphs = {}
         self._moved = False
         self._dirty = False
 
@@ -541,351 +526,40 @@ class PBFSolver:
         for _ in range(n):
             self._step_once()
 
-    def _launch(
-        self,
-        key: str,
-        kernel: wp.Kernel,
-        inputs: list,
-        outputs: list | None = None,
-        dim: int | None = None,
-    ) -> None:
-        """Launch ``kernel`` over the particles (or ``dim`` threads), replaying a recorded launch
-        after the first.
-
-        Packing a launch's arguments costs more Python time than a small kernel runs, so each
-        distinct launch is recorded once per upload and replayed; the arrays it binds are
-        never swapped or reallocated until the next upload.
-        """
-        cmd = self._cmds.get(key)
-        if cmd is None:
-            cmd = wp.launch(
-                kernel,
-                self.buf.n if dim is None else dim,
-                inputs=inputs,
-                outputs=outputs or [],
-                device=self.device,
-                record_cmd=True,
-            )
-            self._cmds[key] = cmd
-        cmd.launch()
-
-    def _reorder(self) -> None:
-        """Sort particles by (world, Morton cell) so neighbours sit close in memory.
-
-        Worlds stay contiguous and each world's particles keep an order that depends only on
-        that world, so batched and single-world runs stay identical.
-        """
-        b = self.buf
-        self._launch(
-            "order_keys",
-            K.order_keys,
-            [b.x, b.world, 1.0 / self.config.h],
-            [b.order_keys, b.order],
-        )
-        # keys: world above 33 Morton bits; sorting only the bits in use is several times faster
-        key_bits = 33 + max(1, (self.num_worlds - 1).bit_length())
-        wp.utils.radix_sort_pairs(b.order_keys, b.order, b.n, end_bit=key_bits)
-        self._launch("gather_state", K.gather_state, [b.order, b.x, b.v, b.p, b.v_tmp])
-        self._launch("copy_state", K.copy_state, [b.p, b.v_tmp, b.x, b.v])
-
     def _step_once(self) -> None:
-        cfg, n = self.config, self.buf.n
+        cfg, n, st = self.config, self.buf.n, self.launches
         # on CUDA the step's sorts allocate scratch memory, which a graph holds only from a pool
         graphs = cfg.graph and (self.device.is_cpu or wp.is_mempool_enabled(self.device))
         if self._poses_pending:
             self._upload_poses()
         if n > 0 and cfg.reorder_every > 0 and self.steps % cfg.reorder_every == 0:
-            self._run("reorder", self._reorder, graphs)
+            st.run("reorder", st.reorder, graphs)
         if n > 0 and self.steps % OVERFLOW_CHECK_EVERY == 1:
             self._check_list_capacity()
         if n == 0:
             self._advance_clock()
             return
-        self._run("start", self._step_start, graphs)
+        st.run("start", st.start, graphs)
         for _ in range(cfg.max_iterations - cfg.iterations):
             if not self.buf.any_active.numpy()[0]:  # on CUDA a 4-byte read-back
                 break
-            self._run("extra", self._extra_iteration, graphs)
-        self._run("end", self._step_end, graphs)
+            st.run("extra", st.extra_iteration, graphs)
+        st.run("end", st.end, graphs)
         visc = self.viscosity
         if visc is not None:
             for _ in range(cfg.viscosity_max_iterations):
                 if not visc.any_active.numpy()[0]:
                     break
-                self._run("viscosity", visc.iteration, graphs)
-            self._run("viscosity_end", visc.finish, graphs)
+                st.run("viscosity", visc.iteration, graphs)
+            st.run("viscosity_end", visc.finish, graphs)
         self._moved = True
         self._advance_clock()
-
-    def _run(self, key: str, launches: Callable[[], None], graphs: bool) -> None:
-        """Run one part of a step: recorded once as a graph and replayed, or launched."""
-        if not graphs:
-            launches()
-            return
-        graph = self._graphs.get(key)
-        if graph is None:
-            with wp.ScopedCapture(device=self.device) as capture:
-                launches()
-            graph = self._graphs[key] = capture.graph
-        wp.capture_launch(graph)
 
     def iterations_used(self) -> np.ndarray:
         """Per world, the density iterations of the last step: ``iterations`` plus the shares
         of the extra ones ``max_density_error`` called for (a float)."""
         extra = np.zeros(self.num_worlds) if self._dirty else self.buf.extra.numpy()
         return self.config.iterations + extra
-
-    def _step_start(self) -> None:
-        """Predict, list neighbours, and every world's first ``iterations`` iterations."""
-        b = self.buf
-        cfg = self.config
-        self._launch(
-            "start_worlds",
-            K.start_worlds,
-            [],
-            [b.active, b.share, b.extra],
-            self.num_worlds,
-        )
-        b.cols.force.zero_()
-        b.cols.torque.zero_()
-        b.push.zero_()
-        P = b.params
-        self._launch(
-            "predict",
-            K.predict,
-            [
-                b.x,
-                b.v,
-                b.world,
-                P["damping"],
-                wp.vec3(*cfg.gravity),
-                cfg.dt,
-                b.cols,
-                cfg.radius,
-                cfg.h,
-            ],
-            [b.x_prev, b.p, b.clear, b.wall, b.wall_collider],
-        )
-        self._build_neighbours()
-        for _ in range(cfg.iterations):
-            self._density_iteration()
-        if cfg.max_iterations > cfg.iterations:
-            self._update_active()
-
-    def _extra_iteration(self) -> None:
-        """One more iteration for the worlds still above ``max_density_error``."""
-        self._density_iteration(extra=True)
-        self._update_active()
-
-    def _update_active(self) -> None:
-        b = self.buf
-        b.any_active.zero_()
-        self._launch(
-            "update_active",
-            K.update_active,
-            [b.worst, self.config.max_density_error],
-            [b.active, b.share, b.extra, b.any_active],
-            self.num_worlds,
-        )
-
-    def _density_iteration(self, extra: bool = False) -> None:
-        """One Jacobi iteration of the density constraints (worlds not ``active`` skip it).
-        An ``extra`` one (past ``iterations``) leaves out the tensile term s_corr, so that the
-        artificial pressure a step applies does not grow with the iterations it takes."""
-        b = self.buf
-        cfg = self.config
-        tag = "_extra" if extra else ""
-        scorr = wp.vec4(0.0, 4.0, 1.0, 0.0) if extra else self.scorr
-        b.worst.zero_()
-        self._launch(
-            "density_sums" + tag,
-            self.pairk.density_sums,
-            [
-                b.p,
-                b.nbr,
-                b.nbr_start,
-                b.nbr_count,
-                b.nbr_stride,
-                cfg.h,
-                self.grad_c,
-                scorr,
-                self.w0,
-                self.eps,
-                b.wall,
-                self.wall_coef,
-                b.world,
-                b.active,
-            ],
-            [b.sums, b.pair, b.lam, b.density, b.worst],
-        )
-        if self.half_lists:  # full lists compute λ in the density pass
-            self._launch(
-                "compute_lambda" + tag,
-                K.compute_lambda,
-                [
-                    b.sums,
-                    b.p,
-                    b.wall,
-                    self.wall_coef,
-                    cfg.h,
-                    self.w0,
-                    self.eps,
-                    b.world,
-                    b.active,
-                ],
-                [b.lam, b.density, b.worst],
-            )
-        self._launch(
-            "compute_delta" + tag,
-            self.pairk.compute_delta,
-            [
-                b.p,
-                b.nbr,
-                b.nbr_start,
-                b.nbr_count,
-                b.nbr_stride,
-                b.lam,
-                b.density,
-                b.pair,
-                cfg.h,
-                self.grad_c,
-                scorr,
-                self.surface_band,
-                b.world,
-                b.active,
-            ],
-            [b.delta],
-        )
-        self._launch(
-            "apply_delta" + tag,
-            K.apply_delta,
-            [
-                b.p,
-                b.delta,
-                cfg.sor,
-                b.world,
-                b.cols,
-                b.mass,
-                cfg.radius,
-                cfg.dt,
-                b.lam,
-                b.wall,
-                b.wall_collider,
-                self.wall_coef,
-                cfg.h,
-                self.w0,
-                b.active,
-                b.share,
-            ],
-            [b.push, b.clear],
-        )
-
-    def _step_end(self) -> None:
-        """Swept collision, velocity update and the velocity filters."""
-        b = self.buf
-        cfg = self.config
-        P = b.params
-        self._launch(
-            "collide",
-            K.collide,
-            [
-                b.p,
-                b.x_prev,
-                b.world,
-                b.cols,
-                b.mass,
-                P["static_friction"],
-                P["dynamic_friction"],
-                P["adhesion_grip"],
-                cfg.radius,
-                cfg.adhesion_range,
-                P["adhesion_frac"],
-                cfg.dt,
-                b.clear,
-            ],
-            [b.push, b.contacts],
-        )
-        self._launch(
-            "update_velocity",
-            K.update_velocity,
-            [
-                b.p,
-                b.x_prev,
-                b.contacts,
-                b.world,
-                P["dissipation"],
-                cfg.sleep_threshold,
-                cfg.dt,
-                wp.vec3(*self._up),
-            ],
-            [b.v, b.x, b.top, b.bottom],
-        )
-        if self._needs_curl_and_normals:
-            self._launch(
-                "vorticity_and_normals",
-                self.pairk.vorticity_and_normals,
-                [
-                    b.x,
-                    b.v,
-                    b.nbr,
-                    b.nbr_start,
-                    b.nbr_count,
-                    b.nbr_stride,
-                    cfg.h,
-                    self.grad_c,
-                    int(self._needs_curl),
-                ],
-                [b.omega, b.normal],
-            )
-        self._launch(
-            "filter_sums",
-            self.pairk.filter_sums,
-            [
-                b.x,
-                b.v,
-                b.omega,
-                b.normal,
-                b.nbr,
-                b.nbr_start,
-                b.nbr_count,
-                b.nbr_stride,
-                b.world,
-                P["vorticity_confinement"],
-                P["cohesion"],
-                P["surface_tension"],
-                P["friction_frac"],
-                cfg.h,
-                self.grad_c,
-                cfg.spacing,
-                cfg.dt,
-                cfg.cohesion_accel,
-                cfg.surface_tension_accel,
-                self.coh_norm,
-                self.curv_norm,
-            ],
-            [b.vsum, b.eta, b.dv_sum],
-        )
-        self._launch(
-            "apply_filters",
-            K.apply_filters,
-            [
-                b.world,
-                P["viscosity_frac"],
-                P["vorticity_confinement"],
-                cfg.dt,
-                cfg.h,
-                b.vsum,
-                b.eta,
-                b.dv_sum,
-                b.omega,
-                b.normal,
-            ],
-            [b.v],
-        )
-        if self.viscosity is not None:
-            self.viscosity.start()
-        # next step's start-of-step collider poses are this step's end poses
-        wp.copy(b.cols.pose_prev, b.cols.pose)
 
     def _check_list_capacity(self) -> None:
         """Warn (once per solver) when a neighbour list filled up: the pairs beyond
@@ -900,65 +574,6 @@ class PBFSolver:
                 f"{self.steps}; pairs beyond it are dropped (raise SolverConfig.max_neighbours)",
                 RuntimeWarning,
                 stacklevel=4,
-            )
-
-    def _build_neighbours(self) -> None:
-        """Hash particles by (world, cell), sort the buckets, and list neighbours within h."""
-        b = self.buf
-        cfg, n = self.config, b.n
-        inv_cell = 1.0 / cfg.h
-        self._launch(
-            "hash_particles",
-            self.pairk.hash_particles,
-            [b.p, b.world, inv_cell, b.bucket_mask],
-            [b.cell, b.keys, b.sorted_idx],
-        )
-        # bucket keys are below the table size, a power of two: sort only those bits
-        wp.utils.radix_sort_pairs(
-            b.keys, b.sorted_idx, n, end_bit=(b.bucket_mask + 1).bit_length() - 1
-        )
-        b.bucket_start.zero_()
-        b.bucket_end.zero_()
-        self._launch(
-            "bucket_ranges",
-            K.bucket_ranges,
-            [b.keys, b.sorted_idx, b.p, b.world, b.cell, n],
-            [
-                b.bucket_start,
-                b.bucket_end,
-                b.p_sorted,
-                b.world_sorted,
-                b.cell_sorted,
-            ],
-        )
-        self._launch(
-            "build_neighbours",
-            self.pairk.build_neighbours,
-            [
-                b.p,
-                b.world,
-                b.cell,
-                b.sorted_idx,
-                b.p_sorted,
-                b.world_sorted,
-                b.cell_sorted,
-                b.bucket_start,
-                b.bucket_end,
-                b.bucket_mask,
-                cfg.h,
-                cfg.max_neighbours,
-                cfg.max_neighbours if self.half_lists else 1,
-                0,
-            ],
-            [b.nbr_build if self.half_lists else b.nbr, b.nbr_count],
-        )
-        if self.half_lists:
-            wp.utils.array_scan(b.nbr_count, b.nbr_start, inclusive=False)
-            self._launch(
-                "pack_neighbours",
-                K.pack_neighbours,
-                [b.nbr_build, cfg.max_neighbours, b.nbr_count, b.nbr_start],
-                [b.nbr],
             )
 
     def _advance_clock(self) -> None:
@@ -1055,7 +670,7 @@ class PBFSolver:
         left out; the bulk is where the density constraint must hold.
         """
         rho, nc = self.densities(), self.neighbour_counts()
-        full = self.lattice_neighbours
+        full = self.constants.lattice_neighbours
         mask = nc >= 0.9 * full
         if world is not None:
             sl = self.world_slice(world)

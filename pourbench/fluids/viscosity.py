@@ -642,7 +642,7 @@ class ImplicitViscosity:
     def _matvec(self, key: str, y: wp.array, active: wp.array) -> None:
         s = self.solver
         b = s.buf
-        s._launch(
+        s.launches.launch(
             key,
             self.kernels.matvec,
             [y, b.nbr, b.nbr_start, b.nbr_count, b.nbr_stride, b.world, active, self.u],
@@ -654,7 +654,7 @@ class ImplicitViscosity:
         s, cfg = self.solver, self.solver.config
         b = s.buf
         d_min = 0.5 * cfg.radius  # a particle is never nearer a wall than its radius less a bit
-        s._launch(
+        s.launches.launch(
             "visc_setup",
             self.kernels.setup,
             [
@@ -665,16 +665,16 @@ class ImplicitViscosity:
             ],
             [self.u, self.diag],
         )
-        s._launch(
+        s.launches.launch(
             "visc_start",
             start,
             [b.x, b.v, b.world, self.c_w, b.wall, b.wall_collider, b.cols, cfg.h, d_min, cfg.dt],
             [self.diag, self.wall_t, self.v_wall, self.rhs, self.sol, self.inv_m],
         )
         # every viscous world takes part in the first product (c_w > 0 marks them)
-        s._launch("visc_mark", mark_viscous, [self.c_w], [self.active], s.num_worlds)
+        s.launches.launch("visc_mark", mark_viscous, [self.c_w], [self.active], s.num_worlds)
         self._matvec("visc_matvec0", self.sol, self.active)
-        s._launch(
+        s.launches.launch(
             "visc_residual",
             residual,
             [self.chunk_start, self.chunk_world, self.c_w, b.wall, self.wall_t, self.inv_m],
@@ -682,7 +682,7 @@ class ImplicitViscosity:
             self.num_chunks,
         )
         self.any_active.zero_()
-        s._launch(
+        s.launches.launch(
             "visc_begin",
             begin_worlds,
             [self.world_chunks, self.partial, self.c_w, cfg.viscosity_tolerance],
@@ -694,21 +694,21 @@ class ImplicitViscosity:
         """One conjugate-gradient iteration of the worlds still active."""
         s, cfg = self.solver, self.solver.config
         self._matvec("visc_matvec", self.direction, self.active)
-        s._launch(
+        s.launches.launch(
             "visc_project",
             project,
             [self.chunk_start, self.chunk_world, self.active, self.c_w, s.buf.wall, self.wall_t],
             [self.direction, self.lap, self.q, self.partial],
             self.num_chunks,
         )
-        s._launch(
+        s.launches.launch(
             "visc_alpha",
             step_length,
             [self.world_chunks, self.partial, self.rz, self.active],
             [self.alpha],
             s.num_worlds,
         )
-        s._launch(
+        s.launches.launch(
             "visc_descend",
             descend,
             [self.chunk_start, self.chunk_world, self.active, self.alpha, self.inv_m],
@@ -716,7 +716,7 @@ class ImplicitViscosity:
             self.num_chunks,
         )
         self.any_active.zero_()
-        s._launch(
+        s.launches.launch(
             "visc_beta",
             next_direction_scale,
             [
@@ -730,13 +730,13 @@ class ImplicitViscosity:
             s.num_worlds,
         )
         turn_inputs = [s.buf.world, self.active, self.beta, self.z]
-        s._launch("visc_turn", turn, turn_inputs, [self.direction])
+        s.launches.launch("visc_turn", turn, turn_inputs, [self.direction])
 
     def finish(self) -> None:
         """The solved velocities, and the walls' viscous reactions on their bodies."""
         s, cfg = self.solver, self.solver.config
         b = s.buf
-        s._launch(
+        s.launches.launch(
             "visc_finish",
             finish,
             [
@@ -761,7 +761,7 @@ class ImplicitViscosity:
         s, cfg = self.solver, self.solver.config
         b = s.buf
         self.drag.zero_()
-        s._launch(
+        s.launches.launch(
             "visc_drag",
             body_drag,
             [

@@ -1,0 +1,433 @@
+"""The kernel launches of one PBF step over every world (Macklin & Müller's loop).
+
+A :class:`StepLaunches` is built on each upload of a solver's scene, on that upload's
+:class:`~pourbench.fluids.buffers.DeviceBuffers`. Each distinct launch is recorded once and
+replayed, and each part of a step (its start, one extra iteration, its end) can be captured
+once as a graph and replayed; the solver decides which parts run
+(:meth:`pourbench.fluids.solver.PBFSolver.step`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+import warp as wp
+
+from pourbench.fluids import kernels as K
+from pourbench.fluids.buffers import DeviceBuffers
+from pourbench.fluids.config import DensityConstants, SolverConfig
+
+if TYPE_CHECKING:
+    from pourbench.fluids.viscosity import ImplicitViscosity
+
+
+class StepLaunches:
+    """The launches of a step on ``buf``.
+
+    Args:
+        config: the solver's settings.
+        device: the Warp device of ``buf``.
+        constants: the density constraint's constants for ``config``.
+        half_lists: half neighbour lists (else full ones, ``SolverConfig.pair_lists``).
+        buf: the device arrays.
+        up: unit vector against gravity.
+        num_worlds: worlds in ``buf``.
+        curl: some world's liquid has vorticity confinement (the curl is computed).
+        normals: some world needs the curl or colour-field normals (surface tension).
+    """
+
+    def __init__(
+        self,
+        config: SolverConfig,
+        device: wp.Device,
+        constants: DensityConstants,
+        half_lists: bool,
+        buf: DeviceBuffers,
+        up: np.ndarray,
+        num_worlds: int,
+        curl: bool,
+        normals: bool,
+    ) -> None:
+        self.config, self.device, self.k, self.buf = config, device, constants, buf
+        self.half_lists = half_lists
+        self.pairk = K.HALF_LISTS if half_lists else K.FULL_LISTS
+        self.num_worlds = num_worlds
+        self._up = up
+        self._needs_curl, self._needs_curl_and_normals = curl, normals
+        self.n = buf.n
+        self.scorr = wp.vec4(*constants.scorr)
+        self.viscosity: ImplicitViscosity | None = None  # started at the end of each step
+        self._cmds: dict[str, wp.Launch] = {}
+        self._graphs: dict[str, wp.Graph] = {}
+
+    def launch(
+        self,
+        key: str,
+        kernel: wp.Kernel,
+        inputs: list,
+        outputs: list | None = None,
+        dim: int | None = None,
+    ) -> None:
+        """Launch ``kernel`` over the particles (or ``dim`` threads), replaying a recorded launch
+        after the first.
+
+        Packing a launch's arguments costs more Python time than a small kernel runs, so each
+        distinct launch is recorded once per upload and replayed; the arrays it binds are
+        never swapped or reallocated until the next upload.
+        """
+        cmd = self._cmds.get(key)
+        if cmd is None:
+            cmd = wp.launch(
+                kernel,
+                self.buf.n if dim is None else dim,
+                inputs=inputs,
+                outputs=outputs or [],
+                device=self.device,
+                record_cmd=True,
+            )
+            self._cmds[key] = cmd
+        cmd.launch()
+
+    def reorder(self) -> None:
+        """Sort particles by (world, Morton cell) so neighbours sit close in memory.
+
+        Worlds stay contiguous and each world's particles keep an order that depends only on
+        that world, so batched and single-world runs stay identical.
+        """
+        b = self.buf
+        self.launch(
+            "order_keys",
+            K.order_keys,
+            [b.x, b.world, 1.0 / self.config.h],
+            [b.order_keys, b.order],
+        )
+        # keys: world above 33 Morton bits; sorting only the bits in use is several times faster
+        key_bits = 33 + max(1, (self.num_worlds - 1).bit_length())
+        wp.utils.radix_sort_pairs(b.order_keys, b.order, b.n, end_bit=key_bits)
+        self.launch("gather_state", K.gather_state, [b.order, b.x, b.v, b.p, b.v_tmp])
+        self.launch("copy_state", K.copy_state, [b.p, b.v_tmp, b.x, b.v])
+
+    def run(self, key: str, launches: Callable[[], None], graphs: bool) -> None:
+        """Run one part of a step: recorded once as a graph and replayed, or launched."""
+        if not graphs:
+            launches()
+            return
+        graph = self._graphs.get(key)
+        if graph is None:
+            with wp.ScopedCapture(device=self.device) as capture:
+                launches()
+            graph = self._graphs[key] = capture.graph
+        wp.capture_launch(graph)
+
+    def start(self) -> None:
+        """Predict, list neighbours, and every world's first ``iterations`` iterations."""
+        b = self.buf
+        cfg = self.config
+        self.launch(
+            "start_worlds",
+            K.start_worlds,
+            [],
+            [b.active, b.share, b.extra],
+            self.num_worlds,
+        )
+        b.cols.force.zero_()
+        b.cols.torque.zero_()
+        b.push.zero_()
+        P = b.params
+        self.launch(
+            "predict",
+            K.predict,
+            [
+                b.x,
+                b.v,
+                b.world,
+                P["damping"],
+                wp.vec3(*cfg.gravity),
+                cfg.dt,
+                b.cols,
+                cfg.radius,
+                cfg.h,
+            ],
+            [b.x_prev, b.p, b.clear, b.wall, b.wall_collider],
+        )
+        self.build_neighbours()
+        for _ in range(cfg.iterations):
+            self.density_iteration()
+        if cfg.max_iterations > cfg.iterations:
+            self.update_active()
+
+    def extra_iteration(self) -> None:
+        """One more iteration for the worlds still above ``max_density_error``."""
+        self.density_iteration(extra=True)
+        self.update_active()
+
+    def update_active(self) -> None:
+        b = self.buf
+        b.any_active.zero_()
+        self.launch(
+            "update_active",
+            K.update_active,
+            [b.worst, self.config.max_density_error],
+            [b.active, b.share, b.extra, b.any_active],
+            self.num_worlds,
+        )
+
+    def density_iteration(self, extra: bool = False) -> None:
+        """One Jacobi iteration of the density constraints (worlds not ``active`` skip it).
+        An ``extra`` one (past ``iterations``) leaves out the tensile term s_corr, so that the
+        artificial pressure a step applies does not grow with the iterations it takes."""
+        b = self.buf
+        cfg = self.config
+        tag = "_extra" if extra else ""
+        scorr = wp.vec4(0.0, 4.0, 1.0, 0.0) if extra else self.scorr
+        b.worst.zero_()
+        self.launch(
+            "density_sums" + tag,
+            self.pairk.density_sums,
+            [
+                b.p,
+                b.nbr,
+                b.nbr_start,
+                b.nbr_count,
+                b.nbr_stride,
+                cfg.h,
+                self.k.grad_c,
+                scorr,
+                self.k.w0,
+                self.k.eps,
+                b.wall,
+                self.k.wall_coef,
+                b.world,
+                b.active,
+            ],
+            [b.sums, b.pair, b.lam, b.density, b.worst],
+        )
+        if self.half_lists:  # full lists compute λ in the density pass
+            self.launch(
+                "compute_lambda" + tag,
+                K.compute_lambda,
+                [
+                    b.sums,
+                    b.p,
+                    b.wall,
+                    self.k.wall_coef,
+                    cfg.h,
+                    self.k.w0,
+                    self.k.eps,
+                    b.world,
+                    b.active,
+                ],
+                [b.lam, b.density, b.worst],
+            )
+        self.launch(
+            "compute_delta" + tag,
+            self.pairk.compute_delta,
+            [
+                b.p,
+                b.nbr,
+                b.nbr_start,
+                b.nbr_count,
+                b.nbr_stride,
+                b.lam,
+                b.density,
+                b.pair,
+                cfg.h,
+                self.k.grad_c,
+                scorr,
+                self.k.surface_band,
+                b.world,
+                b.active,
+            ],
+            [b.delta],
+        )
+        self.launch(
+            "apply_delta" + tag,
+            K.apply_delta,
+            [
+                b.p,
+                b.delta,
+                cfg.sor,
+                b.world,
+                b.cols,
+                b.mass,
+                cfg.radius,
+                cfg.dt,
+                b.lam,
+                b.wall,
+                b.wall_collider,
+                self.k.wall_coef,
+                cfg.h,
+                self.k.w0,
+                b.active,
+                b.share,
+            ],
+            [b.push, b.clear],
+        )
+
+    def end(self) -> None:
+        """Swept collision, velocity update and the velocity filters."""
+        b = self.buf
+        cfg = self.config
+        P = b.params
+        self.launch(
+            "collide",
+            K.collide,
+            [
+                b.p,
+                b.x_prev,
+                b.world,
+                b.cols,
+                b.mass,
+                P["static_friction"],
+                P["dynamic_friction"],
+                P["adhesion_grip"],
+                cfg.radius,
+                cfg.adhesion_range,
+                P["adhesion_frac"],
+                cfg.dt,
+                b.clear,
+            ],
+            [b.push, b.contacts],
+        )
+        self.launch(
+            "update_velocity",
+            K.update_velocity,
+            [
+                b.p,
+                b.x_prev,
+                b.contacts,
+                b.world,
+                P["dissipation"],
+                cfg.sleep_threshold,
+                cfg.dt,
+                wp.vec3(*self._up),
+            ],
+            [b.v, b.x, b.top, b.bottom],
+        )
+        if self._needs_curl_and_normals:
+            self.launch(
+                "vorticity_and_normals",
+                self.pairk.vorticity_and_normals,
+                [
+                    b.x,
+                    b.v,
+                    b.nbr,
+                    b.nbr_start,
+                    b.nbr_count,
+                    b.nbr_stride,
+                    cfg.h,
+                    self.k.grad_c,
+                    int(self._needs_curl),
+                ],
+                [b.omega, b.normal],
+            )
+        self.launch(
+            "filter_sums",
+            self.pairk.filter_sums,
+            [
+                b.x,
+                b.v,
+                b.omega,
+                b.normal,
+                b.nbr,
+                b.nbr_start,
+                b.nbr_count,
+                b.nbr_stride,
+                b.world,
+                P["vorticity_confinement"],
+                P["cohesion"],
+                P["surface_tension"],
+                P["friction_frac"],
+                cfg.h,
+                self.k.grad_c,
+                cfg.spacing,
+                cfg.dt,
+                cfg.cohesion_accel,
+                cfg.surface_tension_accel,
+                self.k.coh_norm,
+                self.k.curv_norm,
+            ],
+            [b.vsum, b.eta, b.dv_sum],
+        )
+        self.launch(
+            "apply_filters",
+            K.apply_filters,
+            [
+                b.world,
+                P["viscosity_frac"],
+                P["vorticity_confinement"],
+                cfg.dt,
+                cfg.h,
+                b.vsum,
+                b.eta,
+                b.dv_sum,
+                b.omega,
+                b.normal,
+            ],
+            [b.v],
+        )
+        if self.viscosity is not None:
+            self.viscosity.start()
+        # next step's start-of-step collider poses are this step's end poses
+        wp.copy(b.cols.pose_prev, b.cols.pose)
+
+    def build_neighbours(self) -> None:
+        """Hash particles by (world, cell), sort the buckets, and list neighbours within h."""
+        b = self.buf
+        cfg, n = self.config, b.n
+        inv_cell = 1.0 / cfg.h
+        self.launch(
+            "hash_particles",
+            self.pairk.hash_particles,
+            [b.p, b.world, inv_cell, b.bucket_mask],
+            [b.cell, b.keys, b.sorted_idx],
+        )
+        # bucket keys are below the table size, a power of two: sort only those bits
+        wp.utils.radix_sort_pairs(
+            b.keys, b.sorted_idx, n, end_bit=(b.bucket_mask + 1).bit_length() - 1
+        )
+        b.bucket_start.zero_()
+        b.bucket_end.zero_()
+        self.launch(
+            "bucket_ranges",
+            K.bucket_ranges,
+            [b.keys, b.sorted_idx, b.p, b.world, b.cell, n],
+            [
+                b.bucket_start,
+                b.bucket_end,
+                b.p_sorted,
+                b.world_sorted,
+                b.cell_sorted,
+            ],
+        )
+        self.launch(
+            "build_neighbours",
+            self.pairk.build_neighbours,
+            [
+                b.p,
+                b.world,
+                b.cell,
+                b.sorted_idx,
+                b.p_sorted,
+                b.world_sorted,
+                b.cell_sorted,
+                b.bucket_start,
+                b.bucket_end,
+                b.bucket_mask,
+                cfg.h,
+                cfg.max_neighbours,
+                cfg.max_neighbours if self.half_lists else 1,
+                0,
+            ],
+            [b.nbr_build if self.half_lists else b.nbr, b.nbr_count],
+        )
+        if self.half_lists:
+            wp.utils.array_scan(b.nbr_count, b.nbr_start, inclusive=False)
+            self.launch(
+                "pack_neighbours",
+                K.pack_neighbours,
+                [b.nbr_build, cfg.max_neighbours, b.nbr_count, b.nbr_start],
+                [b.nbr],
+            )
