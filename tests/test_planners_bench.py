@@ -58,9 +58,9 @@ def test_task_iv_keeps_clearance_on_the_real_robots(robot):
     """Task (iv) as benchmarked (NMPC-MP, Gauss-Newton): MuJoCo clearance at 4 sub-steps per
     control step never drops more than 5 mm below the 5 cm safety distance, nothing collides,
     and (Panda) no joint leaves its limits."""
-    from pourbench.planners._threads import limit_blas_threads
+    from threadpoolctl import threadpool_limits
 
-    limit_blas_threads(1)
+    threadpool_limits(1, user_api="blas")
     task = next(t for t in planning.make_tasks(robot) if t.key == "iv")
     res = planning._run_online(task, "NMPC-MP (GN)")
     assert res["min_clearance_m"] >= planning.SAFETY_DYNAMIC - 0.005

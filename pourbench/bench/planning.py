@@ -32,9 +32,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from threadpoolctl import threadpool_limits
 
 from pourbench.bench._report import markdown_table, write_report
-from pourbench.planners._threads import limit_blas_threads
 from pourbench.planners.baselines.chomp import plan_chomp
 from pourbench.planners.baselines.common import densify
 from pourbench.planners.baselines.ompl_planners import plan_ompl
@@ -540,7 +540,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the planning benchmark; write ``leaderboard/planning.{md,json}``."""
     import json
 
-    limit_blas_threads(1)
+    threadpool_limits(1, user_api="blas")  # small matrices; timings are per core
     quick = bool(getattr(args, "quick", False))
     robots = ("movo",) if quick else ("movo", "panda")
     prm_time = 5.0

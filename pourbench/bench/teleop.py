@@ -54,27 +54,23 @@ feeding, one timing pass; the open-set classes with the same variation.
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
+import sys
+import time
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
-# timings are "on one core": keep BLAS single-threaded (effective when numpy loads after this)
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+import numpy as np
+from threadpoolctl import threadpool_limits
+from tqdm import tqdm
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from collections import defaultdict  # noqa: E402
-from collections.abc import Callable, Sequence  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
-from pathlib import Path  # noqa: E402
-from typing import Any  # noqa: E402
-
-import numpy as np  # noqa: E402
-from tqdm import tqdm  # noqa: E402
-
-from pourbench.bench._report import markdown_table, write_report  # noqa: E402
-from pourbench.teleop import (  # noqa: E402
+from pourbench.bench._report import markdown_table, write_report
+from pourbench.teleop import (
     DT_S,
     FEEDING_DURATION_S,
     FEEDING_TARGETS,
@@ -443,6 +439,7 @@ def _confidence_png(path: Path, hists: dict[str, list[int]], bins: list[float]) 
 def run(args: argparse.Namespace) -> int:
     """Run the suite (see the module docstring); returns 0."""
     quick = bool(getattr(args, "quick", False))
+    threadpool_limits(1)  # BLAS and OpenMP: timings are "on one core"
     pinned = _limit_to_one_core()
     rng = np.random.default_rng(SEED)
     log = sys.stderr
