@@ -106,24 +106,40 @@ def _cmd_train(args: argparse.Namespace) -> int:
     return run(args)
 
 
+def _print_table(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> None:
+    """Columns left-aligned to their widest cell, under a header and a rule."""
+    widths = [max(len(r[i]) for r in (header, *rows)) for i in range(len(header))]
+    for row in (header, tuple("-" * w for w in widths), *rows):
+        print("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip())
+
+
 def _cmd_liquids(args: argparse.Namespace) -> int:
     from pourbench.fluids import liquid_names, liquid_profile
 
+    rows = []
     for name in liquid_names():
         p = liquid_profile(name)
-        print(
-            f"{p.name:14s} density {p.density:6.0f} kg/m^3  viscosity {p.viscosity:6g}  "
-            f"adhesion {p.adhesion:6g}  cohesion {p.cohesion:6g}"
-        )
+        mu = "-" if p.viscosity_pa_s is None else f"{p.viscosity_pa_s:g}"
+        rows.append(
+            (name.lower(), f"{p.density:g}", mu, f"{p.viscosity:g}", f"{p.adhesion:g}",
+             f"{p.cohesion:g}", f"{p.surface_tension:g}")
+        )  # fmt: skip
+    _print_table(
+        ("name", "density kg/m^3", "viscosity Pa*s", "FleX viscosity", "adhesion", "cohesion",
+         "surface tension"),
+        rows,
+    )  # fmt: skip
     return 0
 
 
 def _cmd_containers(args: argparse.Namespace) -> int:
     from pourbench.containers import container_names, get_container
 
+    rows = []
     for name in container_names():
         c = get_container(name)
-        print(f"{c.name:19s} {c.role:10s} {c.kind:8s} {c.description}")
+        rows.append((c.name, c.role, c.kind, c.description))
+    _print_table(("name", "set", "kind", "description"), rows)
     return 0
 
 

@@ -271,3 +271,23 @@ def test_demo_pours_with_the_shipped_policy_once_it_exists(
     assert out.stat().st_size > 10_000
     assert main([*argv, "--target-g", "250"]) == 2  # more than the container starts with
     assert "target_g (250 g) must be below mass_g (200 g)" in capsys.readouterr().err
+
+
+def test_the_listings_are_headed_tables_of_names_the_library_accepts(capsys) -> None:
+    """``pourbench liquids`` and ``containers`` print a header, a rule and one row per entry,
+    each row's first cell a name that the liquid or container look-up takes as printed."""
+    from pourbench.containers import container_names, get_container
+    from pourbench.fluids import liquid_names, liquid_profile
+
+    for command, names, lookup in (
+        ("liquids", liquid_names(), liquid_profile),
+        ("containers", container_names(), get_container),
+    ):
+        assert main([command]) == 0
+        header, rule, *rows = capsys.readouterr().out.splitlines()
+        assert header.split()[0] == "name" and set(rule.replace(" ", "")) == {"-"}
+        assert len(rows) == len(names)
+        printed = [re.split(r"\s{2,}", row)[0] for row in rows]
+        for name in printed:
+            lookup(name)  # raises for a name it does not take
+        assert "dish soap" in printed or command == "containers"
