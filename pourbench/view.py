@@ -21,8 +21,14 @@ from pourbench.outputs import AtomicOutput
 _RINGS, _SEGMENTS = 8, 16
 
 
-def check_display(environ: Mapping[str, str] | None = None, platform: str | None = None) -> None:
-    """Raise a clear error when MuJoCo's (GLFW) viewer has no display to open on Linux.
+def check_display(
+    environ: Mapping[str, str] | None = None,
+    platform: str | None = None,
+    asked: str = "--viewer",
+    instead: str = "leave --viewer out to write a rerun recording instead",
+) -> None:
+    """Raise a clear error when MuJoCo's (GLFW) viewer has no display to open on Linux: what
+    was ``asked`` needs one, do what ``instead`` says.
 
     Without this, GLFW fails after MuJoCo has written its error to ``MUJOCO_LOG.TXT`` in the
     working directory.
@@ -33,8 +39,7 @@ def check_display(environ: Mapping[str, str] | None = None, platform: str | None
     if environ.get("DISPLAY") or environ.get("WAYLAND_DISPLAY"):
         return
     raise PourbenchError(
-        "--viewer needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); "
-        "leave --viewer out to write a rerun recording instead"
+        f"{asked} needs a display (neither DISPLAY nor WAYLAND_DISPLAY is set); {instead}"
     )
 
 

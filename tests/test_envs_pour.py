@@ -396,6 +396,29 @@ def test_rgb_render_headless() -> None:
     assert int(out.split("DIFF")[1]) > 200  # the liquid's particles are drawn
 
 
+def test_human_render_without_a_display_is_the_envs_own_error(monkeypatch) -> None:
+    """render_mode="human" reaches the env through gym.make (no pygame wrapper), and without
+    a display the env refuses it in one line that says what to use instead."""
+    import sys
+
+    from pourbench.errors import PourbenchError
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("the display check is Linux's")
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    for make in (
+        lambda: gym.make("pourbench/Pour-v0", render_mode="human"),
+        lambda: PourEnv(render_mode="human"),
+    ):
+        with pytest.raises(
+            PourbenchError, match=r"render_mode='human'.*needs a display.*rgb_array"
+        ):
+            make()
+    with pytest.raises(ValueError, match="render_mode must be None, 'human' or 'rgb_array'"):
+        PourEnv(render_mode="ansi")
+
+
 def test_vector_render_with_workers_headless() -> None:
     """The vector env renders every world, the worker's too: world 1's image is the single
     env's given seed + 1, not world 0's. Pixels are compared with a margin, as the two images

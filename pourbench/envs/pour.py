@@ -101,8 +101,10 @@ class PourEnv(gym.Env):
     ``completed_episodes`` (episodes completed so far, the average's count up to its window).
 
     Args:
-        render_mode: None or "rgb_array" (MuJoCo offscreen renderer, particles as spheres;
-            without a display ``import pourbench`` chooses EGL unless ``MUJOCO_GL`` is set).
+        render_mode: None, "rgb_array" (MuJoCo offscreen renderer, particles as spheres;
+            without a display ``import pourbench`` chooses EGL unless ``MUJOCO_GL`` is set) or
+            "human" (MuJoCo's passive viewer, updated at every reset and step; refused
+            without a display).
         record_path: if given, a rerun ``.rrd`` recording of the liquid and containers, one
             frame per reset and step. It is written to ``<record_path>.partial`` while the
             environment runs and moved to ``record_path`` by :meth:`close`, so an earlier
@@ -111,13 +113,26 @@ class PourEnv(gym.Env):
             ``action_mode="free"``, ``container_set="novel"``, ``solver=SolverConfig(...)``).
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 10,
+    }
 
     def __init__(
         self, render_mode: str | None = None, record_path: str | None = None, **kwargs: Any
     ) -> None:
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(
+                f"render_mode must be None, 'human' or 'rgb_array', got {render_mode!r}"
+            )
+        if render_mode == "human":
+            from pourbench.view import check_display
+
+            check_display(
+                asked="render_mode='human' (MuJoCo's viewer)",
+                instead="use render_mode='rgb_array', or record_path='pour.rrd' for a rerun "
+                "recording",
+            )
         self.render_mode = render_mode
         self.batch = PourBatch(1, make_config(**kwargs))
         self.config = self.batch.config
@@ -125,6 +140,7 @@ class PourEnv(gym.Env):
         self.observation_space = observation_space()
         self.action_space = action_space()
         self._renderer: mujoco.Renderer | None = None
+        self._viewer: Any = None  # MuJoCo's passive viewer (render_mode "human")
         self._recorder = None
         if record_path is not None:
             from pourbench.fluids.record import FluidRecorder
@@ -144,15 +160,22 @@ class PourEnv(gym.Env):
         info = _world_info(self.batch.reset_info(), 0)
         if self._recorder is not None:
             self._recorder.log()
+        if self.render_mode == "human":
+            self.render()
         return self.batch.observe()[0], info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         obs, rew, term, trunc, info = self.batch.step(action)  # checks the action
         if self._recorder is not None:
             self._recorder.log()
+        if self.render_mode == "human":
+            self.render()
         return obs[0], float(rew[0]), bool(term[0]), bool(trunc[0]), _world_info(info, 0)
 
     def render(self) -> np.ndarray | None:
+        if self.render_mode == "human":
+            self._show()
+            return None
         if self.render_mode != "rgb_array":
             return None
         if self._renderer is None:
@@ -165,6 +188,20 @@ class PourEnv(gym.Env):
                     "Without a display, set MUJOCO_GL=egl (or osmesa) before MuJoCo is imported"
                 ) from None
         return render_world(self.batch, 0, self._renderer)
+
+    def _show(self) -> None:
+        """Update MuJoCo's passive viewer (opened on the first call) with the scene and the
+        particles as spheres."""
+        import mujoco.viewer
+
+        data = self.batch.world_data(0)
+        if self._viewer is None:
+            self._viewer = mujoco.viewer.launch_passive(self.batch.model, data)
+        with self._viewer.lock():
+            scene = self._viewer.user_scn
+            scene.ngeom = 0
+            add_particles(scene, self.batch, 0)
+        self._viewer.sync()
 
     def discard_recording(self) -> None:
         """Drop the recording being written (an earlier one at ``record_path`` stays)."""
@@ -179,6 +216,9 @@ class PourEnv(gym.Env):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
 
 
 def _world_info(info: dict[str, np.ndarray], w: int) -> dict[str, Any]:
@@ -202,6 +242,12 @@ def render_world(batch: PourBatch, world: int, renderer: mujoco.Renderer) -> np.
     for g in scene.geoms[: scene.ngeom]:  # see-through containers (the only meshes)
         if g.type == mujoco.mjtGeom.mjGEOM_MESH:
             g.rgba[3] = 0.35
+    add_particles(scene, batch, world)
+    return renderer.render()
+
+
+def add_particles(scene: mujoco.MjvScene, batch: PourBatch, world: int) -> None:
+    """Append one world's particles to ``scene`` as spheres, as many as it has room for."""
     x = batch.solver.positions()[batch.solver.world_slice(world)]
     r = 0.5 * batch.solver_config.spacing
     eye = np.eye(3).ravel()
@@ -216,7 +262,6 @@ def render_world(batch: PourBatch, world: int, renderer: mujoco.Renderer) -> np.
             rgba,
         )
         scene.ngeom += 1
-    return renderer.render()
 
 
 __all__ = ["PourEnv", "action_space", "observation_space", "render_world"]
