@@ -1,5 +1,5 @@
 """Shared test configuration: GPU tests are skipped without CUDA; training tests run torch on
-one thread."""
+one thread; planner tests run BLAS and OpenMP on one thread."""
 
 from __future__ import annotations
 
@@ -26,3 +26,17 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_blas_thread_for_planners(request: pytest.FixtureRequest):
+    """Planner tests compare plans bit for bit, which a threaded BLAS reduction can change in
+    the last bit: every BLAS and OpenMP library loaded when a planner module starts (whatever
+    earlier tests loaded or raised) is held to one thread for it, its fixtures included."""
+    if not request.module.__name__.startswith("test_planners"):
+        yield
+        return
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        yield

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from planner_arms import CAPSULES, JOINTS, arm7_model, arm7_xml, central_differences
-from threadpoolctl import threadpool_limits
 
 from pourbench.planners.baselines.chomp import ChompConfig, plan_chomp
 from pourbench.planners.baselines.common import densify
@@ -24,8 +23,6 @@ from pourbench.planners.robots import (
 )
 from pourbench.planners.rollout import run_to_goal
 from pourbench.planners.world import PlanningWorld
-
-threadpool_limits(1, user_api="blas")
 
 
 def test_unknown_robot_raises_value_error():

@@ -5,14 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from planner_arms import CAPSULES, JOINTS, arm7_model, central_differences
-from threadpoolctl import threadpool_limits
 
 from pourbench.planners.distance import Box, Capsule, Sphere, capsule_obstacle_distances
 from pourbench.planners.kinematics import ArmKinematics
 from pourbench.planners.nmpc import NMPCConfig, NMPCPlanner
 from pourbench.planners.rollout import rotation_error, run_to_goal
-
-threadpool_limits(1, user_api="blas")
 
 
 @pytest.fixture(scope="module")
