@@ -160,7 +160,6 @@ class PBFSolver:
         self.buf: DeviceBuffers | None = None
         self._layout: ColliderLayout | None = None
         self.viscosity: V.ImplicitViscosity | None = None
-        self._needs_curl = self._needs_curl_and_normals = False
         self.launches: StepLaunches | None = None  # the step's kernel launches
         self._moved = False  # x_prev holds the start of a step whose end is x
 
@@ -402,21 +401,8 @@ class PBFSolver:
             [liq.density * cfg.spacing**3 for liq in self.liquids],
             table,
         )
-        # curl feeds only vorticity confinement; colour-field normals only surface tension
-        self._needs_curl = any(liq.vorticity_confinement > 0 for liq in self.liquids)
-        self._needs_curl_and_normals = self._needs_curl or any(
-            liq.surface_tension > 0 for liq in self.liquids
-        )
         self.launches = StepLaunches(
-            cfg,
-            self.device,
-            self.constants,
-            self.half_lists,
-            self.buf,
-            self._up,
-            self.num_worlds,
-            self._needs_curl,
-            self._needs_curl_and_normals,
+            cfg, self.device, self.constants, self.half_lists, self.buf, self._up, self.liquids
         )
         self.viscosity = None
         if any(liq.viscosity_pa_s for liq in self.liquids):

@@ -9,7 +9,7 @@ once as a graph and replayed; the solver decides which parts run
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -18,6 +18,7 @@ import warp as wp
 from pourbench.fluids import kernels as K
 from pourbench.fluids.buffers import DeviceBuffers
 from pourbench.fluids.config import DensityConstants, SolverConfig
+from pourbench.fluids.params import LiquidProfile
 
 if TYPE_CHECKING:
     from pourbench.fluids.viscosity import ImplicitViscosity
@@ -33,9 +34,8 @@ class StepLaunches:
         half_lists: half neighbour lists (else full ones, ``SolverConfig.pair_lists``).
         buf: the device arrays.
         up: unit vector against gravity.
-        num_worlds: worlds in ``buf``.
-        curl: some world's liquid has vorticity confinement (the curl is computed).
-        normals: some world needs the curl or colour-field normals (surface tension).
+        liquids: each world's liquid; the curl is computed when some liquid has vorticity
+            confinement, colour-field normals with it or when some has surface tension.
     """
 
     def __init__(
@@ -46,17 +46,17 @@ class StepLaunches:
         half_lists: bool,
         buf: DeviceBuffers,
         up: np.ndarray,
-        num_worlds: int,
-        curl: bool,
-        normals: bool,
+        liquids: Sequence[LiquidProfile],
     ) -> None:
         self.config, self.device, self.k, self.buf = config, device, constants, buf
         self.half_lists = half_lists
         self.pairk = K.HALF_LISTS if half_lists else K.FULL_LISTS
-        self.num_worlds = num_worlds
+        self.num_worlds = len(liquids)
         self._up = up
-        self._needs_curl, self._needs_curl_and_normals = curl, normals
-        self.n = buf.n
+        self._needs_curl = any(liq.vorticity_confinement > 0 for liq in liquids)
+        self._needs_curl_and_normals = self._needs_curl or any(
+            liq.surface_tension > 0 for liq in liquids
+        )
         self.scorr = wp.vec4(*constants.scorr)
         self.viscosity: ImplicitViscosity | None = None  # started at the end of each step
         self._cmds: dict[str, wp.Launch] = {}
