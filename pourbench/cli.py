@@ -17,6 +17,7 @@ import sys
 from collections.abc import Sequence
 
 from pourbench.argtypes import nonnegative_int, policy_name, positive_float, positive_int
+from pourbench.errors import InvalidParameterError, PourbenchError
 
 BENCH_SUITES: tuple[str, ...] = (
     "fluids",
@@ -46,7 +47,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     modules = [importlib.import_module(f"pourbench.bench.{suite}") for suite in suites]
     if getattr(args, "ray", None) is not None:
         if not all(getattr(m, "HAS_RAY", False) for m in modules):
-            raise ValueError(f"--ray: bench {args.suite} has no Ray path; pouring and transfer do")
+            raise InvalidParameterError(
+                f"--ray: bench {args.suite} has no Ray path; pouring and transfer do"
+            )
         from pourbench.bench._jobs import import_ray
 
         import_ray()  # before any work: says how to install it
@@ -54,10 +57,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from pourbench.fluids.solver import cuda_available
 
         if not cuda_available():
-            raise ValueError("--device cuda: Warp sees no CUDA device")
+            raise InvalidParameterError("--device cuda: Warp sees no CUDA device")
         modules = [m for m in modules if getattr(m, "HAS_CUDA", False)]
         if not modules:
-            raise ValueError(f"bench {args.suite} has no CUDA path; use --device cpu")
+            raise InvalidParameterError(f"bench {args.suite} has no CUDA path; use --device cpu")
     if getattr(args, "out", None) is None:  # a quick run is a smoke test: no tables
         args.out = "leaderboard"
         if args.quick and not args.no_write:
@@ -276,7 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument(
         "--receiving", default="tray", help="receiving container (`pourbench containers`)"
     )
-    view.add_argument("--out", default="scene.rrd", help="rerun recording to write")
+    view.add_argument("--out", default="runs/scene.rrd", help="rerun recording to write")
     view.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer instead")
     view.set_defaults(func=_cmd_view)
     return parser
@@ -286,7 +289,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except ValueError as exc:  # bad input: one clear line, no traceback
+    except PourbenchError as exc:  # bad input: one clear line, no traceback
         print(f"pourbench: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # Ctrl-C: outputs are written atomically, nothing half-done stays

@@ -202,8 +202,6 @@ def _wall_plan(shape: ContainerShape, max_error: object, who: str) -> tuple[int,
     the pieces stay within :data:`MAX_WALL_PIECES`, :data:`MAX_ARC_STEPS` and
     :data:`MAX_WALL_VERTICES` (a finer mesh takes minutes; raise ``max_error`` instead)."""
     max_error = _check_max_error(max_error)
-    if not isinstance(shape, BoxShell | RevolvedShell):
-        raise InvalidParameterError(f"{who}: shape must be a container shape, got {shape!r}")
     wall = float(shape.wall)
     if not wall >= MIN_WALL:
         raise InvalidParameterError(f"{who}: wall {wall!r} m is thinner than {MIN_WALL} m")
@@ -443,10 +441,6 @@ def add_container_body(
     if name is not None and not isinstance(name, str):
         raise InvalidParameterError(f"name must be a string, got {name!r}")
     name = name or c.name
-    if not isinstance(spec, mujoco.MjSpec):
-        raise InvalidParameterError(f"spec must be a mujoco.MjSpec, got {spec!r}")
-    if not isinstance(parent, mujoco.MjsBody):
-        raise InvalidParameterError(f"parent must be a body of spec, got {parent!r}")
     if mocap and parent != spec.worldbody:
         raise InvalidParameterError(f"mocap body {name!r}: parent must be spec.worldbody")
     pos_arr = check_array("pos", pos, (3,))

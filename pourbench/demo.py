@@ -64,7 +64,7 @@ def run_demo(args: argparse.Namespace) -> int:
     if args.device not in ("cpu", "cuda"):
         raise InvalidParameterError(f"device must be 'cpu' or 'cuda', got {args.device!r}")
     if args.device == "cuda" and not cuda_available():
-        raise ValueError("--device cuda: Warp sees no CUDA device")
+        raise InvalidParameterError("--device cuda: Warp sees no CUDA device")
     config = SolverConfig(device=args.device)
     steps = round(seconds / config.dt)
     if steps < 1:

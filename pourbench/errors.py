@@ -1,6 +1,6 @@
 """Exception hierarchy, and the input checks that raise it (numbers, integers, arrays, poses,
-quaternions, TOML data files). Every error is a ``ValueError`` so callers can catch bad input
-uniformly."""
+quaternions, TOML data files). Every pourbench error is a :class:`PourbenchError`, itself a
+``ValueError``, so callers catch bad input uniformly."""
 
 from __future__ import annotations
 
@@ -140,7 +140,7 @@ _UNIT_NORM2 = ((1.0 - 1e-3) ** 2, (1.0 + 1e-3) ** 2)  # |q| within 1e-3 of 1, sq
 
 
 def check_poses(name: str, value: object, count: int) -> np.ndarray:
-    """``count`` poses (x, y, z, qx, qy, qz, qw) as a (count, 7) array; each quaternion must be
+    """``count`` poses (x, y, z, qw, qx, qy, qz) as a (count, 7) array; each quaternion must be
     unit length within 1e-3 (it is used as given, not normalised)."""
     arr = check_array(name, value, (count, 7))
     if count == 0:

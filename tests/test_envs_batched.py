@@ -15,6 +15,7 @@ from pourbench.envs.observation import counter_normals
 from pourbench.envs.pour import PourEnv
 from pourbench.envs.vector import PourVectorEnv
 from pourbench.errors import CapacityError
+from pourbench.geometry.rotation import warp_transforms
 from pourbench.scene import body_clearance
 
 
@@ -116,7 +117,7 @@ def test_collider_poses_are_rows_of_one_table_written_by_index() -> None:
         for _ in range(3):  # 9 colliders: the table grows twice
             s.add_container(w, BoxShell(0.02, 0.02, 0.05, 0.005))
     s.fill(0, 3, 5.0)
-    poses = np.tile([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], (9, 1))
+    poses = np.tile([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], (9, 1))
     poses[:, 0] = np.arange(9) * 0.01
     s.set_collider_poses(np.arange(9)[::-1], poses[::-1], com=poses[::-1, :3])
     s.set_collider_poses([4], poses[[4]] + [0, 0, 0.5, 0, 0, 0, 0])
@@ -131,4 +132,4 @@ def test_collider_poses_are_rows_of_one_table_written_by_index() -> None:
     s.step()
     device = s.buf.cols.pose.numpy()
     order = [3, 4, 5, 6, 7, 8, 0, 1, 2]  # worlds 0, 1, 2
-    np.testing.assert_array_equal(device, expected[order].astype(np.float32))
+    np.testing.assert_array_equal(device, warp_transforms(expected[order]))

@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from pourbench.envs.action_handler import ActionLimits, handle_actions
+from pourbench.envs.action_handler import ActionLimits, as_actions, handle_actions
+from pourbench.envs.core import PourConfig
 from pourbench.envs.curriculum import lesson_at, load_curriculum
 from pourbench.envs.observation import GRAVITY, WeightFilter
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
+from pourbench.errors import InvalidParameterError, UnknownNameError
 
 LIM = ActionLimits()
 DT = 0.1
@@ -87,10 +89,10 @@ def test_free_mode_applies_both_velocities() -> None:
 def test_tilt_bounds_and_bad_actions() -> None:
     _, tilt, _ = _handle((1.0, 0.0), ABOVE, 0.0, tilt=LIM.max_tilt)
     assert tilt[0] == LIM.max_tilt
-    with pytest.raises(ValueError, match="finite"):
-        _handle((np.nan, 0.0), ABOVE, 0.0)
-    with pytest.raises(ValueError, match="action_mode"):
-        _handle((0.0, 0.0), ABOVE, 0.0, mode="teleport")
+    with pytest.raises(InvalidParameterError, match="actions must be finite"):
+        as_actions((np.nan, 0.0))
+    with pytest.raises(UnknownNameError, match="unknown action_mode 'teleport'"):
+        PourConfig(action_mode="teleport")
 
 
 def _reward(
@@ -219,7 +221,7 @@ def test_default_curriculum() -> None:
     draws = np.array([lessons[2].sample(rng).viscosity_pa_s for _ in range(400)])
     assert np.mean(draws < np.sqrt(lo * hi)) == pytest.approx(0.5, abs=0.08)
     assert [lesson_at(p, lessons) for p in (0.0, 0.3, 0.6, 1.0)] == [0, 1, 2, 2]
-    # a last rollout past its budget stays in the last lesson; NaN used to give it too
+    # a last rollout past its budget stays in the last lesson; NaN is refused, not read as past it
     assert lesson_at(1.02, lessons) == 2
     for bad in (float("nan"), -0.1, "half"):
         with pytest.raises(ValueError, match="progress must be"):
@@ -238,21 +240,20 @@ GOOD_RANGES = {
 @pytest.mark.parametrize(
     "change, words",
     [
-        ({"density": "[1000.0, 900.0]"}, "lesson 0: density must be [low, high]"),
-        ({"density": "[-100.0, 900.0]"}, "lesson 0: density must be > 0"),
-        ({"viscosity_pa_s": "[-0.1, 0.05]"}, "lesson 0: viscosity_pa_s must be > 0"),
-        ({"viscosity_pa_s": "[0.0, 0.05]"}, "lesson 0: viscosity_pa_s must be > 0"),
-        ({"cohesion": "[0.001, nan]"}, "lesson 0: cohesion must be [low, high]"),
-        ({"adhesion": None}, "lesson 0: adhesion must be [low, high]"),
-        ({"fraction": None}, "lesson 0: fraction must be a number >= 0"),
-        ({"fraction": '"half"'}, "lesson 0: fraction must be a number >= 0"),
+        ({"density": "[1000.0, 900.0]"}, "key 'lesson[0].density': must be [low, high]"),
+        ({"density": "[-100.0, 900.0]"}, "key 'lesson[0].density': must be > 0"),
+        ({"viscosity_pa_s": "[-0.1, 0.05]"}, "key 'lesson[0].viscosity_pa_s': must be > 0"),
+        ({"viscosity_pa_s": "[0.0, 0.05]"}, "key 'lesson[0].viscosity_pa_s': must be > 0"),
+        ({"cohesion": "[0.001, nan]"}, "key 'lesson[0].cohesion': must be [low, high]"),
+        ({"adhesion": None}, "key 'lesson[0].adhesion': must be [low, high]"),
+        ({"fraction": None}, "key 'lesson[0].fraction': must be a number >= 0"),
+        ({"fraction": '"half"'}, "key 'lesson[0].fraction': must be a number >= 0"),
         ({"density": "[900.0, 1100.0"}, "invalid TOML"),
     ],
 )
 def test_bad_curriculum_file_names_the_file_lesson_and_key(tmp_path, change, words) -> None:
     """Every malformed entry is refused when the file is read, with the file, the lesson and
-    the key (a negative density used to pass and fail at an episode's reset, naming the base
-    liquid instead)."""
+    the key (not at an episode's reset, naming the base liquid)."""
     entries = {"fraction": "1.0", **GOOD_RANGES, **change}
     bad = tmp_path / "c.toml"
     body = "".join(f"{k} = {v}\n" for k, v in entries.items() if v is not None)

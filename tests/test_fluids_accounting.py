@@ -14,7 +14,7 @@ from pourbench.geometry.shapes import BoxShell
 
 def _tilted(z: float, angle: float, x: float = 0.0) -> np.ndarray:
     """Pose at (x, 0, z) turned by ``angle`` (rad) about the y axis."""
-    return np.array([x, 0.0, z, 0.0, np.sin(angle / 2), 0.0, np.cos(angle / 2)])
+    return np.array([x, 0.0, z, np.cos(angle / 2), 0.0, np.sin(angle / 2), 0.0])
 
 
 def _expected(x, poses, shapes, margin):

@@ -107,7 +107,7 @@ def test_colliders_take_the_geoms_poses_mujoco_computes() -> None:
             gid, d = k // 2, datas[b.world]
             pose = coupling.solver.colliders[b.collider].pose
             rot = np.zeros(9)
-            mujoco.mju_quat2Mat(rot, np.r_[pose[6], pose[3:6]])
+            mujoco.mju_quat2Mat(rot, pose[3:])
             np.testing.assert_allclose(pose[:3], d.geom_xpos[gid], atol=1e-12)
             np.testing.assert_allclose(rot, d.geom_xmat[gid], atol=1e-12)
 
@@ -275,7 +275,7 @@ def test_a_missing_cuda_device_is_named() -> None:
         PBFSolver(1, SolverConfig(device=f"cuda:{count}"))
 
 
-_NO_ROTATION = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+_NO_ROTATION = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
 
 
 def _two_worlds() -> tuple[PBFSolver, int]:
@@ -303,7 +303,7 @@ def _two_worlds() -> tuple[PBFSolver, int]:
         (lambda s, c: s.fill(0, 4, 10.0), "collider 4 not in"),
         (lambda s, c: s.set_collider_poses([-1], [_NO_ROTATION]), "collider -1 not in"),
         (lambda s, c: s.set_collider_poses([c], [_NO_ROTATION[:6]]), r"\(1, 7\)"),
-        (lambda s, c: s.set_collider_poses([c], [[0, 0, 0, 0, 0, 0, 3.0]]), "norm 3"),
+        (lambda s, c: s.set_collider_poses([c], [[0, 0, 0, 3.0, 0, 0, 0]]), "norm 3"),
         (lambda s, c: s.set_collider_poses([c], [_NO_ROTATION], com=[[math.nan] * 3]), "com"),
         (lambda s, c: s.set_container_shape(3, cup(0.02, 0.04)), "collider 3 not in"),
         (lambda s, c: s.collider_sdf(7, [[0.0, 0.0, 0.0]]), "collider 7 not in"),
@@ -396,7 +396,7 @@ def test_collider_input_errors() -> None:
         s.add_collider(5, "plane", [0.0])
     c = s.add_collider(0, "plane", [0.0])
     with pytest.raises(InvalidParameterError, match="finite"):
-        s.set_collider_poses([c], np.array([[math.nan, 0, 0, 0, 0, 0, 1]]))
+        s.set_collider_poses([c], np.array([[math.nan, 0, 0, 1, 0, 0, 0]]))
 
 
 def test_runaway_world_is_flagged_not_raised() -> None:
@@ -421,7 +421,7 @@ def test_edits_mid_run_continue_from_the_current_state() -> None:
         if edit:
             before = s.positions()
             s.set_liquid(0, "water")  # same liquid: the run must be unchanged
-            s.add_collider(0, "sphere", [0.01], pose=[1.0, 1.0, 1.0, 0, 0, 0, 1])  # far away
+            s.add_collider(0, "sphere", [0.01], pose=[1.0, 1.0, 1.0, 1, 0, 0, 0])  # far away
             np.testing.assert_array_equal(s.positions(), before)
         s.step(30)
         return s.positions()
@@ -691,13 +691,13 @@ def test_bounding_spheres_skip_only_colliders_out_of_reach() -> None:
             ("cylinder", [0.007, 0.006], 0.01),
             ("box", [0.006, 0.005, 0.007], 0.03),
         ]:
-            s.add_collider(0, kind, params, pose=[x, 0.02, 0.02, 0, 0, 0, 1])
-        s.add_container(0, cup(0.015, 0.02), pose=[0.0, -0.025, 0.012, 0, 0, 0, 1])
+            s.add_collider(0, kind, params, pose=[x, 0.02, 0.02, 1, 0, 0, 0])
+        s.add_container(0, cup(0.015, 0.02), pose=[0.0, -0.025, 0.012, 1, 0, 0, 0])
         # a closed box mesh (1.2 × 1 × 0.8 cm), turned 30° about z
         corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
         faces = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]  # fmt: skip
-        turn = [0.0, 0.0, math.sin(math.pi / 12), math.cos(math.pi / 12)]
+        turn = [math.cos(math.pi / 12), 0.0, 0.0, math.sin(math.pi / 12)]
         s.add_collider(
             0, "mesh", [], pose=[0.025, -0.02, 0.03, *turn],
             mesh=(corners * [0.006, 0.005, 0.004], np.array(faces)),
@@ -871,7 +871,7 @@ def test_fast_liquid_motion_is_not_a_blow_up() -> None:
         dam.step(4)
         for _ in range(4):  # carried at 1.5 m/s for 0.4 s, then held
             x = min(tray.steps + 1, 96) * tray.config.dt * 1.5
-            tray.set_collider_poses([c], np.array([[x, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]]))
+            tray.set_collider_poses([c], np.array([[x, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]]))
             tray.step()
         fastest = max(fastest, float(np.linalg.norm(dam.velocities(), axis=1).max()))
         assert not dam.diverged().any(), f"dam break flagged at {dam.time:.2f} s"

@@ -33,7 +33,7 @@ def on_incline(solver: PBFSolver, world: int, degrees: float, x: float) -> np.nd
     """A plane through the origin tilted by ``degrees`` about the x axis (downhill: −y) and
     one particle resting on it ``x`` metres along the tilt axis; returns its position."""
     th = math.radians(degrees)
-    quat = [math.sin(th / 2), 0.0, 0.0, math.cos(th / 2)]
+    quat = [math.cos(th / 2), math.sin(th / 2), 0.0, 0.0]
     solver.add_collider(world, "plane", [0.0], pose=[0.0, 0.0, 0.0, *quat])
     normal = np.array([0.0, -math.sin(th), math.cos(th)])
     start = np.array([x, 0.0, 0.0]) + normal * CFG.radius
@@ -137,13 +137,13 @@ def test_friction_acts_on_motion_relative_to_a_moving_collider() -> None:
     solver = PBFSolver(len(cases), CFG)
     for w, (mu_s, mu_d) in enumerate(cases):
         solver.set_liquid(w, bare(staticFriction=mu_s, dynamicFriction=mu_d))
-        solver.add_collider(w, "box", [0.5, 0.5, 0.05], pose=[0.0, 0.0, -0.05, 0, 0, 0, 1.0])
+        solver.add_collider(w, "box", [0.5, 0.5, 0.05], pose=[0.0, 0.0, -0.05, 1.0, 0, 0, 0])
         solver.add_particles(w, np.array([[0.0, 0.0, CFG.radius]]))
     solver.step(1)  # resting on the belt
     worlds = list(range(len(cases)))
     slipping = {12: 0, 60: 1}  # a step at which each rough case still slips
     for k in range(1, STEPS + 1):
-        pose = [belt_speed * k * CFG.dt, 0.0, -0.05, 0.0, 0.0, 0.0, 1.0]
+        pose = [belt_speed * k * CFG.dt, 0.0, -0.05, 1.0, 0.0, 0.0, 0.0]
         solver.set_collider_poses(worlds, np.array([pose] * len(cases)))
         solver.step(1)
         if k in slipping:
@@ -167,7 +167,7 @@ def test_a_particles_reaction_on_a_body_is_its_contact_force(mu: float) -> None:
     solver = PBFSolver(1, CFG)
     solver.set_liquid(0, bare(staticFriction=mu, dynamicFriction=mu))
     body = solver.new_body_slot()
-    quat = [math.sin(th / 2), 0.0, 0.0, math.cos(th / 2)]
+    quat = [math.cos(th / 2), math.sin(th / 2), 0.0, 0.0]
     box = solver.add_collider(0, "box", [0.2, 0.2, 0.05], pose=[*com, *quat], body=body)
     solver.set_collider_poses([box], np.array([[*com, *quat]]), com=com[None])
     normal = np.array([0.0, -math.sin(th), math.cos(th)])
@@ -211,12 +211,12 @@ def test_a_turntable_carries_a_particle_on_its_circle() -> None:
     solver = PBFSolver(2, CFG)
     for w, mu in enumerate((0.9, 0.0)):
         solver.set_liquid(w, bare(staticFriction=mu, dynamicFriction=mu))
-        solver.add_collider(w, "box", [0.5, 0.5, 0.05], pose=[0.0, 0.0, -0.05, 0, 0, 0, 1.0])
+        solver.add_collider(w, "box", [0.5, 0.5, 0.05], pose=[0.0, 0.0, -0.05, 1.0, 0, 0, 0])
         solver.add_particles(w, np.array([[radius, 0.0, CFG.radius]]))
     solver.step(1)  # resting on the table
     for k in range(1, STEPS + 1):
         a = omega * k * CFG.dt
-        pose = [0.0, 0.0, -0.05, 0.0, 0.0, math.sin(a / 2), math.cos(a / 2)]
+        pose = [0.0, 0.0, -0.05, math.cos(a / 2), 0.0, 0.0, math.sin(a / 2)]
         solver.set_collider_poses([0, 1], np.array([pose, pose]))
         solver.step(1)
     x, v = solver.positions(), solver.velocities()

@@ -37,7 +37,7 @@ def hanging() -> dict[str, tuple[int, float, float, float, float]]:
         solver.set_liquid(w, name)
         body = solver.new_body_slot()
         solver.add_collider(
-            w, "box", [0.05, 0.05, 0.01], pose=[0, 0, CEILING_Z + 0.01, 0, 0, 0, 1], body=body
+            w, "box", [0.05, 0.05, 0.01], pose=[0, 0, CEILING_Z + 0.01, 1, 0, 0, 0], body=body
         )
         solver.add_particles(w, film)
     solver.step(SECOND)

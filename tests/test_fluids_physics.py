@@ -338,7 +338,7 @@ def check_determinism_and_batching(device: str = "cpu") -> None:
             if g > 200.0:  # a 15 cm column in a 4 × 4 cm box
                 c = s.add_container(w, BoxShell(0.02, 0.02, 0.2, 0.005))
             else:
-                c = s.add_container(w, cup(0.03, 0.06), pose=[0.0, 0, 0.02, 0, 0.1, 0, 0.995])
+                c = s.add_container(w, cup(0.03, 0.06), pose=[0.0, 0, 0.02, 0.995, 0, 0.1, 0])
             s.fill(w, c, g, liq)
         s.step(60)
         return s
@@ -435,7 +435,7 @@ def test_graph_replays_the_step_exactly(device: str) -> None:
             if k == 30:  # a scene change mid-run: the graph must be recorded anew
                 s.add_particles(1, np.array([[0.0, 0.0, 0.08], [0.004, 0.0, 0.085]]))
             a = 0.01 * k
-            pose = [0.0, 0.0, 0.0, math.sin(a / 2), 0.0, 0.0, math.cos(a / 2)]
+            pose = [0.0, 0.0, 0.0, math.cos(a / 2), math.sin(a / 2), 0.0, 0.0]
             s.set_collider_poses(cups, np.array([pose, pose]))
             s.step()
             forces.append(s.body_wrenches()[0])

@@ -83,7 +83,7 @@ def test_the_wall_curvature_of_a_sphere_and_a_plane() -> None:
     s = PBFSolver(1, cfg)
     radius = 0.02
     s.add_collider(0, "sphere", [radius])
-    s.add_collider(0, "box", [0.03, 0.03, 0.01], pose=[0.0, 0.0, -0.2, 0.0, 0.0, 0.0, 1.0])
+    s.add_collider(0, "box", [0.03, 0.03, 0.01], pose=[0.0, 0.0, -0.2, 1.0, 0.0, 0.0, 0.0])
     rng = np.random.default_rng(0)
     u = rng.normal(size=(64, 3))
     u /= np.linalg.norm(u, axis=1, keepdims=True)
@@ -119,9 +119,9 @@ def test_shapes_with_edges_keep_the_plane() -> None:
     cfg = SolverConfig(gravity=(0.0, 0.0, 0.0), reorder_every=0)
     s = PBFSolver(1, cfg)
     s.add_container(0, BoxShell(0.05, 0.05, 0.1, 0.01))
-    s.add_collider(0, "box", [0.01, 0.01, 0.01], pose=[0.0, 0.0, 0.05, 0.0, 0.0, 0.0, 1.0])
+    s.add_collider(0, "box", [0.01, 0.01, 0.01], pose=[0.0, 0.0, 0.05, 1.0, 0.0, 0.0, 0.0])
     rim = 0.04
-    cup_pose = [0.3, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+    cup_pose = [0.3, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
     s.add_container(0, RevolvedShell(((0.0, 0.0), (rim, 0.0), (rim, 0.12)), 0.004), pose=cup_pose)
     points = np.array(
         [

@@ -235,3 +235,6 @@ def test_drawing_a_scene_loads_no_warp() -> None:
     )
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert run.stdout.strip() == "[]"
+    code = "import sys, pourbench.fluids.params; print('warp' in sys.modules)"  # the profiles
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert run.stdout.strip() == "False"

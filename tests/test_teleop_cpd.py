@@ -50,9 +50,9 @@ def test_rigid_and_affine_transforms_refuse_other_points() -> None:
     Y = rng.uniform(-0.3, 0.3, size=(40, 2))
     for res in (register_rigid(Y + 0.1, Y), register_affine(Y + 0.1, Y)):
         with pytest.raises(InvalidParameterError, match="pts has 3 dims, expected 2"):
-            res.transform(np.zeros((4, 3)))  # used to fail in numpy's matmul
+            res.transform(np.zeros((4, 3)))
         with pytest.raises(InvalidParameterError, match="pts contains NaN"):
-            res.transform(np.full((4, 2), np.nan))  # used to return NaN
+            res.transform(np.full((4, 2), np.nan))
 
 
 def test_rigid_without_scale_keeps_unit_scale() -> None:
@@ -191,8 +191,6 @@ def test_rigid_warm_start_resumes_the_same_em() -> None:
     warm = register_rigid(X, Y, w=0.1, tol=1e-8, max_iter=300 - early.iterations, init=early)
     assert early.iterations + warm.iterations == cold.iterations
     np.testing.assert_allclose(warm.points, cold.points, atol=1e-12)
-    with pytest.raises(InvalidParameterError, match="init must be a RigidResult"):
-        register_rigid(X, Y, init=(np.eye(2), np.zeros(2), 1.0))
     with pytest.raises(InvalidParameterError, match="dimension"):
         register_rigid(np.c_[X, X[:, :1]], np.c_[Y, Y[:, :1]], init=early)
 

@@ -231,7 +231,6 @@ _RNG = np.random.default_rng
         (lambda: SkillCPDConfig(min_confidence=2.0), "min_confidence must be in"),
         (lambda: SkillCPDConfig(cpd_tol=np.nan), "cpd_tol must be finite"),
         (lambda: SkillCPD(SkillLibrary(0.006)), "no skills"),
-        (lambda: SkillCPD(None), "library must be a fitted SkillLibrary"),
         (lambda: closest_step(np.full(2, np.nan), np.zeros((20, 2)), 5, 3), "point"),
         (lambda: closest_step(np.zeros(2), np.zeros((20, 2)), 5, -5), "window must be >= 0"),
         (lambda: closest_step(np.zeros(2), np.full((20, 2), np.nan), 5, 3), r"NaN .* \[2, 9\)"),

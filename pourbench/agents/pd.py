@@ -106,8 +106,6 @@ class PDPourer:
     """The PD baseline for a batch of ``num_envs`` worlds (an integer >= 1)."""
 
     def __init__(self, num_envs: int = 1, config: PDConfig | None = None) -> None:
-        if config is not None and not isinstance(config, PDConfig):
-            raise InvalidParameterError(f"config must be a PDConfig or None, got {config!r}")
         self.config = config or PDConfig()
         self.n = check_int("num_envs", num_envs, minimum=1)
         self.last_w = np.full(self.n, np.nan)

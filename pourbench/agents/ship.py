@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from pourbench.argtypes import POLICY_DIR
-from pourbench.errors import InvalidParameterError
+from pourbench.errors import InvalidParameterError, PourbenchError
 from pourbench.outputs import write_text_atomic
 
 _NAME = re.compile(r"^[a-z0-9][a-z0-9-]*$")
@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         path = ship(args[0], args[1], last=last)
-    except ValueError as exc:
+    except PourbenchError as exc:
         print(f"pourbench.agents.ship: error: {exc}", file=sys.stderr)
         return 2
     print(f"shipped {args[1]}: {path.with_suffix('.zip')} and {path}")

@@ -87,7 +87,7 @@ def _fail(path: Path, key: str, message: str) -> InvalidParameterError:
 
 
 def _check_train(path: Path, key: str, settings: dict[str, Any]) -> None:
-    from pourbench.envs.core import known_liquid
+    from pourbench.envs.options import known_liquid
 
     try:
         TrainArgs(**settings)

@@ -40,7 +40,13 @@ from typing import Any
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, check_finite, check_int, check_positive
+from pourbench.errors import (
+    InvalidParameterError,
+    PourbenchError,
+    check_finite,
+    check_int,
+    check_positive,
+)
 
 ALGORITHMS = ("ppo", "recurrent_ppo", "sac")
 POLICIES = ("mlp", "lstm")
@@ -441,7 +447,7 @@ def train(
     ``success_rate``, ``train_s``) and the run's folder once the checkpoint beside them is
     written, and with the final evaluation's (``finished`` True) at the end: a sweep's trial
     passes them to Ray Tune (:mod:`pourbench.agents.sweep`)."""
-    from pourbench.envs.core import known_liquid
+    from pourbench.envs.options import known_liquid
     from pourbench.outputs import OutputPathError, check_output_folder, write_text_atomic
 
     for name in filter(None, (args.liquid, args.eval_liquid)):
@@ -690,7 +696,7 @@ def _field_help() -> dict[str, str]:
 
 
 def run(args: argparse.Namespace, command: str | None = None) -> int:
-    """Train with the parsed flags and print the result JSON (``ValueError`` on bad input);
+    """Train with the parsed flags and print the result JSON (``PourbenchError`` on bad input);
     ``command``: see :func:`train`."""
     fields = TrainArgs.__dataclass_fields__
     result = train(TrainArgs(**{k: v for k, v in vars(args).items() if k in fields}), command)
@@ -704,7 +710,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         words = sys.argv[1:] if argv is None else argv
         return run(parser.parse_args(argv), "python -m pourbench.agents.train " + " ".join(words))
-    except ValueError as exc:  # bad input: one clear line, no traceback
+    except PourbenchError as exc:  # bad input: one clear line, no traceback
         print(f"pourbench.agents.train: error: {exc}", file=sys.stderr)
         return 2
 

@@ -6,7 +6,7 @@ processes on the CPU; on CUDA (when a device is present) the single env and 256,
 8 mm particles, 10 Hz control with 12 physics substeps). Each case resets once, takes two
 warm-up steps, then steps with a fixed pouring action for a time budget; throughput counts
 one step of one world as one environment step; every case alternates step by step with the
-step as it was before the batched step (:mod:`pourbench.bench.env_baseline`, in this
+world-by-world step (:mod:`pourbench.bench.env_baseline`, in this
 process, on the same worlds), whose throughput and the speed-up over it are in the last
 columns. ``host_share`` is the share of the processes'
 time outside the solver's steps: 1 − (solver seconds summed over the processes) / (workers ×
@@ -77,7 +77,7 @@ def run_case(
     returns a leaderboard row. An episode that ends is reset, as a training loop does (the
     vector env resets its worlds itself), and the resets count in the time. With
     ``baseline``, the same worlds stepped by :class:`~pourbench.bench.env_baseline.
-    LoopedPourBatch` (the step before issue 28, in this process) alternate step by step with
+    LoopedPourBatch` (the world-by-world step, in this process) alternate step by step with
     the case, so both see the same machine load, until the baseline has had ``budget_s`` and
     ``min_steps`` of its own."""
     from pourbench.envs import PourConfig, default_solver_config

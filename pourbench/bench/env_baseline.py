@@ -1,7 +1,7 @@
-"""The Pour-v0 step as it was before the batched step (issue 28), kept as a timing baseline.
+"""A world-by-world Pour-v0 step, the timing baseline of the batched one.
 
 :class:`LoopedPourBatch` is a :class:`~pourbench.envs.core.PourBatch` whose step does the
-work the old one did world by world: every substep it sets each world's mocap pose in its
+batched step's work world by world: every substep it sets each world's mocap pose in its
 own ``MjData``, steps MuJoCo once per world, reads every world's body poses into the
 colliders and writes the liquid's wrenches back (:class:`~pourbench.fluids.MujocoCoupling`),
 and samples each due sensor with a draw from that world's generator; after the substeps it
@@ -60,7 +60,7 @@ class LoopedPourBatch(PourBatch):
         for k, w in enumerate(worlds):
             mid = self.mocap_id[self.worlds[w].container]
             self.datas[w].mocap_pos[mid] = poses[k, :3]
-            self.datas[w].mocap_quat[mid] = [poses[k, 6], *poses[k, 3:6]]
+            self.datas[w].mocap_quat[mid] = poses[k, 3:]
         self.solver.set_collider_poses([self.pour_col[w] for w in worlds], poses)
 
     def step(

@@ -331,8 +331,15 @@ def run(args: argparse.Namespace) -> int:
     rows = []
     choice = getattr(args, "device", "auto")
     for device, n, worlds, lists in cases(args.quick, choice):
-        print(f"fluids: {device} {n} particles, {worlds} world(s), {lists} lists…", file=sys.stderr)
+        print(
+            f"fluids: {device} ~{n} particles, {worlds} world(s), {lists} lists…", file=sys.stderr
+        )
         rows.append(run_case(device, n, worlds, pair_lists=lists))
+        rate = rows[-1]["particle_steps_per_s"]
+        print(
+            f"fluids:   {rows[-1]['particles']} particles, {rate:.3g} particle-steps/s",
+            file=sys.stderr,
+        )
     checks_device = "cuda" if choice == "cuda" else "cpu"
     checks, checks_md = ({}, "") if args.quick else validation(checks_device)
     hold = [] if args.quick else holding_cost(checks_device)

@@ -35,6 +35,7 @@ from scipy.spatial.transform import Rotation
 from threadpoolctl import threadpool_limits
 
 from pourbench.bench._report import markdown_table, write_report
+from pourbench.geometry.rotation import rotation_error
 from pourbench.planners.baselines.chomp import plan_chomp
 from pourbench.planners.baselines.common import densify
 from pourbench.planners.baselines.ompl_planners import plan_ompl
@@ -50,7 +51,7 @@ from pourbench.planners.robots import (
     joint_speed_limits,
     robot_mjspec,
 )
-from pourbench.planners.rollout import rotation_error, run_to_goal
+from pourbench.planners.rollout import run_to_goal
 from pourbench.planners.world import PlanningWorld
 
 TS = 0.2  # control period (s)
@@ -580,4 +581,6 @@ def run(args: argparse.Namespace) -> int:
         )  # fmt: skip
     if getattr(args, "json", False):
         print(json.dumps({"suite": "planning", **extra, "rows": rows}))
+    else:
+        print(markdown_table(rows, ["robot", "task", *COLUMNS]))
     return 0

@@ -144,7 +144,7 @@ def pours(policy: str, liquid: str, container: str | None, target_g: float, coun
     ``{"too_small": reason}`` where the container cannot hold the target."""
     from pourbench.agents.evaluate import pour_episode
     from pourbench.agents.loading import load_policy
-    from pourbench.envs.core import known_liquid
+    from pourbench.envs.options import known_liquid
     from pourbench.envs.pour import PourEnv
     from pourbench.errors import CapacityError
 

@@ -145,8 +145,8 @@ VARIATIONS_3D = (
 
 OPERATORS = ("held-out demo", "skill replay")
 
-# Open-set classes: a 21-letter library without these 5 letters (the ones issue 32 found
-# "recognised" at confidence 1.0); its own letters form the other class.
+# Open-set classes: a 21-letter library without these 5 letters (a closed-set posterior
+# "recognises" each at confidence 1.0); its own letters form the other class.
 UNKNOWN_LETTERS = "BDOUZ"
 OPEN_SET_CLASSES = {False: "letter in library", True: "letter not in library"}
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.errors import check_finite, check_positive
+from pourbench.errors import InvalidParameterError, check_finite, check_positive
 
 ACTION_MODES: tuple[str, ...] = ("thesis", "free")
 
@@ -48,26 +48,26 @@ def as_actions(actions: object, n: int | None = None) -> np.ndarray:
     """``actions`` as an (n, 2) float array of (tilt rate, approach rate) rows.
 
     Raises:
-        ValueError: the actions do not hold two numbers a world (``n`` worlds when given),
-            or hold NaN or infinite values.
+        InvalidParameterError: the actions do not hold two numbers a world (``n`` worlds when
+            given), or hold NaN or infinite values.
     """
     try:
         a = np.asarray(actions, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"actions must be numbers, got {actions!r}") from exc
+        raise InvalidParameterError(f"actions must be numbers, got {actions!r}") from exc
     rows = a.size // 2 if n is None else n
     # n worlds' actions come as (n, 2); a flat (2 n,) vector is refused for n > 1, since
     # which numbers belong to which world would be a guess
     flat_batch = n is not None and n > 1 and a.ndim < 2
     if a.size != 2 * rows or a.size == 0 or (a.ndim > 1 and a.shape[-1] != 2) or flat_batch:
         want = "(2,) or (n, 2)" if n is None else ("(2,)" if n == 1 else f"({n}, 2)")
-        raise ValueError(
+        raise InvalidParameterError(
             f"actions must have shape {want}: (tilt rate, approach rate) a world; "
             f"got shape {a.shape}"
         )
     a = a.reshape(rows, 2)
     if not np.all(np.isfinite(a)):
-        raise ValueError(f"actions must be finite, got {a.tolist()}")
+        raise InvalidParameterError(f"actions must be finite, got {a.tolist()}")
     return a
 
 
@@ -88,7 +88,8 @@ def handle_actions(
     """Next pouring-container base positions and tilts for a batch of worlds.
 
     Args:
-        actions: (n, 2) ``(ω, r)``, each in [-1, 1].
+        actions: (n, 2) ``(ω, r)``, finite (:func:`as_actions` checks them); clipped to
+            [-1, 1].
         base: (n, 3) pouring container's upright base point (rim centre minus the rim
             height), m. Only its horizontal part matters for "above".
         tilt: (n,) current tilt, rad.
@@ -107,9 +108,7 @@ def handle_actions(
         New base positions (n, 3), new tilts (n,), and whether each world was above the
         receiving container (n,) when the action was applied.
     """
-    if mode not in ACTION_MODES:
-        raise ValueError(f"unknown action_mode {mode!r}; known: {list(ACTION_MODES)}")
-    a = np.clip(as_actions(actions), -1.0, 1.0)
+    a = np.clip(actions, -1.0, 1.0)
     omega, r = a[:, 0] * limits.max_rate, a[:, 1] * limits.max_speed
     base = np.asarray(base, float)
     d_xy = target_pos[:, :2] - base[:, :2]

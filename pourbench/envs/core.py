@@ -35,6 +35,7 @@ from pourbench.containers import Container, container_names, get_container
 from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, as_actions, handle_actions
 from pourbench.envs.curriculum import Lesson, draw_liquid, load_curriculum
 from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
+from pourbench.envs.options import ResetOptions, known_liquid
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
 from pourbench.errors import (
     CapacityError,
@@ -50,12 +51,11 @@ from pourbench.fluids import (
     MujocoCoupling,
     PBFSolver,
     SolverConfig,
-    liquid_names,
-    liquid_profile,
 )
 from pourbench.fluids.accounting import LiquidCounter
 from pourbench.fluids.coupling import ReactionLog
 from pourbench.geometry.fill import container_lattice
+from pourbench.geometry.rotation import quat_to_matrix
 from pourbench.scene import TABLE_HALF_XY, TABLE_HEIGHT, body_clearance, build_pour_scene
 
 
@@ -88,7 +88,7 @@ def particle_grams(liquid: LiquidProfile, spacing: float) -> float:
 
 
 def draw_amounts(
-    opts: Mapping,
+    opts: ResetOptions,
     rng: np.random.Generator,
     cfg: PourConfig,
     liquid: LiquidProfile,
@@ -99,10 +99,9 @@ def draw_amounts(
     """An episode's (target_g, initial_g): from reset ``opts`` or drawn from ``cfg``'s ranges,
     checked against one particle's mass (at ``spacing``, m) and 85 % of the pouring
     container's ``capacity_g`` for ``liquid``."""
-    target = opts.get("target_g")
+    target = opts.target_g
     if target is None:
         target = float(rng.uniform(*cfg.target_range_g))
-    target = check_positive("target_g", target)
     particle_g = particle_grams(liquid, spacing)
     if target < particle_g:
         raise InvalidParameterError(
@@ -116,10 +115,9 @@ def draw_amounts(
     )
     if target > cap:
         raise CapacityError(f"target_g={target:g} g is more than {holds}")
-    initial = opts.get("initial_g")
+    initial = opts.initial_g
     if initial is None:
         initial = min(target + float(rng.uniform(*cfg.extra_range_g)), cap)
-    initial = check_finite("initial_g", initial)
     if initial > cap:
         raise CapacityError(f"initial_g={initial:g} g is more than {holds}")
     if initial < target:
@@ -173,6 +171,8 @@ class PourConfig:
         sensor_rate_hz, sensor_cutoff_hz, sensor_noise_n: the weight filter (Hz, Hz, N).
         receiving: receiving container name.
         container_set: "training" or "novel" (the pouring containers drawn from).
+        container: one pouring container by name, from either set (``pourbench
+            containers``); it is then the only one, whatever ``container_set`` says.
         liquid: a named profile, or None to draw from the current curriculum lesson.
         lesson: curriculum lesson index used when ``liquid`` is None.
         rehearse: with ``liquid`` None, draw each reset's liquid from a lesson chosen
@@ -201,6 +201,7 @@ class PourConfig:
     sensor_noise_n: float = 0.15
     receiving: str = "tray"
     container_set: str = "training"
+    container: str | None = None
     liquid: str | None = None
     lesson: int = 0
     rehearse: bool = False
@@ -208,6 +209,17 @@ class PourConfig:
     solver: SolverConfig | None = None
 
     def __post_init__(self) -> None:
+        if self.action_mode not in ACTION_MODES:
+            raise UnknownNameError("action_mode", self.action_mode, ACTION_MODES)
+        if self.container_set not in CONTAINER_SETS:
+            raise UnknownNameError("container_set", self.container_set, CONTAINER_SETS)
+        if self.container is not None and self.container not in _pouring_sets():
+            sets = _pouring_sets()
+            raise UnknownNameError(
+                "pouring container", self.container, [f"{n} ({sets[n]})" for n in sets]
+            )
+        if self.liquid is not None:
+            known_liquid(self.liquid)
         if not isinstance(self.rehearse, bool):
             raise InvalidParameterError(f"rehearse must be True or False, got {self.rehearse!r}")
         positive = ("control_hz", "pour_tilt", "upright_tilt", "sensor_rate_hz", "sensor_cutoff_hz")
@@ -244,6 +256,28 @@ class PourConfig:
             ("start_height", None),
         ):
             _check_range(name, getattr(self, name), low)
+
+
+def _pouring_sets() -> dict[str, str]:
+    """Every pouring container's name and its set."""
+    return {n: s for s in CONTAINER_SETS for n in container_names(s)}
+
+
+def pouring_candidates(cfg: PourConfig) -> tuple[str, ...]:
+    """The pouring containers a task with ``cfg`` draws from (its scene holds each)."""
+    return (cfg.container,) if cfg.container is not None else container_names(cfg.container_set)
+
+
+def refuse_container(name: object, candidates: tuple[str, ...]) -> None:
+    """Raise for a reset's pouring container ``name`` outside the task's ``candidates``:
+    saying how to make a task with it when it is a shipped one."""
+    sets = _pouring_sets()
+    if name in sets:
+        raise InvalidParameterError(
+            f"pouring container {name!r} ({sets[name]} set) is not in this task's scene, which "
+            f"holds {list(candidates)}: make the env with container={name!r}"
+        )
+    raise UnknownNameError("pouring container", name, [f"{n} ({sets[n]})" for n in sets])
 
 
 def _check_range(name: str, value: object, minimum: float | None) -> None:
@@ -289,14 +323,7 @@ class PourBatch:
 
     def __init__(self, num_worlds: int = 1, config: PourConfig | None = None) -> None:
         cfg = config or PourConfig()
-        if cfg.action_mode not in ACTION_MODES:
-            raise ValueError(f"unknown action_mode {cfg.action_mode!r}; known: {ACTION_MODES}")
-        if cfg.container_set not in CONTAINER_SETS:
-            raise ValueError(
-                f"unknown container_set {cfg.container_set!r}; known: {list(CONTAINER_SETS)}"
-            )
-        if cfg.liquid is not None:
-            known_liquid(cfg.liquid)
+        self.default_liquid = None if cfg.liquid is None else known_liquid(cfg.liquid)
         self.config, self.n = cfg, check_int("num_worlds", num_worlds, minimum=1)
         self.lessons: tuple[Lesson, ...] = load_curriculum(cfg.curriculum)
         self.lesson = 0
@@ -311,7 +338,7 @@ class PourBatch:
         check_memory(self.n, cfg)  # before anything of the worlds is allocated
         self.substeps = max(1, round(1.0 / (cfg.control_hz * scfg.dt)))
         self.control_dt = self.substeps * scfg.dt
-        self.candidates = container_names(cfg.container_set)
+        self.candidates = pouring_candidates(cfg)
         # MuJoCo: the first candidate is body "pouring", the others "pouring_<name>"
         scene = build_pour_scene(pouring=self.candidates[0], receiving=cfg.receiving)
         from pourbench.containers import add_container_body
@@ -415,7 +442,7 @@ class PourBatch:
         return n * spacing**3 * 1e3 * density  # g
 
     def pouring_poses(self, worlds: np.ndarray | list[int] | None = None) -> np.ndarray:
-        """Poses (k, 7: x y z qx qy qz qw; m) of ``worlds``' pouring containers (None: all):
+        """Poses (k, 7; m) of ``worlds``' pouring containers (None: all):
         the base's position, tilted by ``tilt`` about the y axis through the rim's centre,
         height ``rim_height`` above the base."""
         if worlds is None:
@@ -440,39 +467,29 @@ class PourBatch:
         pose = self.pouring_poses([w])[0]
         mid = self.mocap_id[self.worlds[w].container]
         d.mocap_pos[mid] = pose[:3]
-        d.mocap_quat[mid] = [pose[6], *pose[3:6]]
+        d.mocap_quat[mid] = pose[3:]
         mujoco.mj_forward(self.model, d)
         return d
 
     # ----------------------------------------------------------------------------- reset
 
-    def reset_world(self, world: int, seed: int | None = None, options: dict | None = None) -> None:
-        """Start a new episode in ``world`` (draws from its generator; reseeds it if given)."""
+    def reset_world(
+        self, world: int, seed: int | None = None, options: Mapping | ResetOptions | None = None
+    ) -> None:
+        """Start a new episode in ``world`` (draws from its generator; reseeds it if given).
+        Every refusal comes before the world changes."""
         cfg = self.config
+        opts = ResetOptions.parse(options)
         old = self.worlds[world]
         rng = np.random.default_rng(seed) if (seed is not None or old is None) else old.rng
-        if options is not None and not isinstance(options, Mapping):
-            raise InvalidParameterError(
-                f"reset options must be a dict such as {{'liquid': 'water'}}, got {options!r}"
-            )
-        opts = dict(options or {})
-        unknown = set(opts) - {"liquid", "target_g", "container", "initial_g", "start"}
-        if unknown:
-            raise ValueError(
-                f"unknown reset options {sorted(unknown)}; known: "
-                "['container', 'initial_g', 'liquid', 'start', 'target_g']"
-            )
-        # liquid
-        liq = opts.get("liquid", cfg.liquid)
-        if liq is None:
+        liquid = opts.liquid if opts.liquid is not None else self.default_liquid
+        if liquid is None:
             liquid = draw_liquid(self.lessons, self.lesson, rng, cfg.rehearse)
-        else:
-            liquid = known_liquid(liq)
         # container: one that holds the drawn range's largest target with room to pour,
         # and in any case the amount asked for
-        name = opts.get("container")
-        key = "initial_g" if "initial_g" in opts else "target_g"
-        asked = None if opts.get(key) is None else check_finite(key, opts[key])
+        name = opts.container
+        key = "initial_g" if opts.initial_g is not None else "target_g"
+        asked = getattr(opts, key)
         if name is None:
 
             def fits_in(c: str, grams: float) -> bool:
@@ -493,27 +510,18 @@ class PourBatch:
                     )
             name = fits[int(rng.integers(len(fits)))]
         elif name not in self.candidates:
-            raise UnknownNameError("pouring container", name, self.candidates)
+            refuse_container(name, self.candidates)
         target, initial = draw_amounts(
             opts, rng, cfg, liquid, name, self.capacity_g(name, liquid.density),
             self.solver_config.spacing,
         )  # fmt: skip
-        start = opts.get("start")
+        start = opts.start
         if start is None:
-            start = [
-                rng.uniform(*cfg.start_x),
-                rng.uniform(*cfg.start_y),
-                rng.uniform(*cfg.start_height),
-            ]
-        start = np.asarray(start, float)
-        if start.shape != (3,) or not np.all(np.isfinite(start)):
-            raise ValueError(
-                f"start must be three finite numbers (x, y, height of the pouring container's "
-                f"base relative to the receiving container's, m), got {opts.get('start')!r}"
-            )
+            xy = [rng.uniform(*cfg.start_x), rng.uniform(*cfg.start_y)]
+            start = np.array([*xy, rng.uniform(*cfg.start_height)])
         base = self.target_pos + start
         if not (np.all(np.abs(base[:2]) <= TABLE_HALF_XY) and 0.0 <= start[2] <= MAX_START_HEIGHT):
-            raise ValueError(
+            raise InvalidParameterError(
                 f"start {start.tolist()} puts the pouring container's base off the table "
                 f"(|x|, |y| of the base within {TABLE_HALF_XY} m of the table's centre) or "
                 f"outside 0-{MAX_START_HEIGHT} m above the receiving container's base"
@@ -563,7 +571,7 @@ class PourBatch:
         """Advance every world by one control step.
 
         Args:
-            actions: (n, 2) ``(ω, r)`` in [-1, 1]; NaN raises ``ValueError``.
+            actions: (n, 2) ``(ω, r)`` in [-1, 1]; NaN raises ``InvalidParameterError``.
             active: (n,) worlds whose action is applied; the others hold still (their liquid
                 still moves) and their reward/flags are meaningless.
 
@@ -762,9 +770,9 @@ class _ClearanceCheck:
 
     def overlapping(self, cidx: np.ndarray, poses: np.ndarray, live: np.ndarray) -> np.ndarray:
         """(n,) overlap flags of the worlds whose pouring container is candidate ``cidx``
-        at ``poses`` (n, 7: x y z qx qy qz qw); worlds not ``live`` read False."""
+        at ``poses`` (n, 7); worlds not ``live`` read False."""
         out = np.zeros(len(cidx), bool)
-        rot = _rotations(poses[:, 3:])
+        rot = quat_to_matrix(poses[:, 3:])
         for c in np.unique(cidx[live]):
             pos, rad, centre, radius = self.local[c]
             rows = np.flatnonzero(live & (cidx == c))
@@ -786,7 +794,7 @@ class _ClearanceCheck:
     def _exact(self, c: int, pose: np.ndarray) -> float:
         d = self.data
         d.mocap_pos[self.mocap[c]] = pose[:3]
-        d.mocap_quat[self.mocap[c]] = [pose[6], *pose[3:6]]
+        d.mocap_quat[self.mocap[c]] = pose[3:]
         mujoco.mj_kinematics(self.model, d)
         try:
             return body_clearance(self.model, d, self.names[c], self.other)
@@ -800,7 +808,7 @@ _SLACK = 1e-4  # m: bounding spheres this close go to the exact check
 
 
 def _rim_poses(base: np.ndarray, tilt: np.ndarray, rim_height: np.ndarray) -> np.ndarray:
-    """Poses (..., 7: x y z qx qy qz qw) of containers whose base point is ``base`` (..., 3),
+    """Poses (..., 7) of containers whose base point is ``base`` (..., 3),
     tilted by ``tilt`` (...) about the y axis through the rim's centre, ``rim_height`` (m,
     broadcast over the leading axes) above the base."""
     h = np.broadcast_to(rim_height, tilt.shape)
@@ -809,7 +817,7 @@ def _rim_poses(base: np.ndarray, tilt: np.ndarray, rim_height: np.ndarray) -> np
     poses[..., 2] += h  # the rim's centre, which the tilt keeps in place
     poses[..., 0] += np.sin(tilt) * -h
     poses[..., 2] += np.cos(tilt) * -h
-    poses[..., 4], poses[..., 6] = np.sin(tilt / 2), np.cos(tilt / 2)
+    poses[..., 3], poses[..., 5] = np.cos(tilt / 2), np.sin(tilt / 2)
     return poses
 
 
@@ -818,19 +826,6 @@ def _enclosing(pos: np.ndarray, rad: np.ndarray) -> tuple[np.ndarray, float]:
     centre = pos.mean(0) if len(pos) else np.zeros(3)
     radius = float(np.max(np.linalg.norm(pos - centre, axis=1) + rad)) if len(pos) else 0.0
     return centre, radius
-
-
-def _rotations(q: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rotation matrices of (n, 4) unit quaternions (qx, qy, qz, qw)."""
-    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        1,
-    )
 
 
 _HOST_BYTES_PER_PARTICLE = 250  # host copies: the solver's staging and a step's read-back
@@ -848,7 +843,7 @@ def estimate_memory(num_worlds: int, config: PourConfig | None = None) -> tuple[
     worlds = check_int("num_worlds", num_worlds, minimum=1)
     most = max(
         len(container_lattice(get_container(c).shape, scfg.spacing))
-        for c in container_names(cfg.container_set)
+        for c in pouring_candidates(cfg)
     )
     mode = scfg.pair_lists
     if mode == "auto":
@@ -903,24 +898,6 @@ def check_memory(num_worlds: int, config: PourConfig | None = None) -> None:
 OBS_BOUND = 1e4
 MAX_START_HEIGHT = 0.5
 """Highest start of the pouring container's base above the receiving one's, m."""
-
-
-def known_liquid(liquid: str | LiquidProfile) -> LiquidProfile:
-    """The profile for ``liquid``; a ``ValueError`` listing the known names otherwise, and an
-    :class:`InvalidParameterError` for a profile without a physical viscosity (the
-    observation's viscosity feature, :func:`viscosity_feature`, needs one)."""
-    try:
-        profile = liquid_profile(liquid)
-    except UnknownNameError:
-        raise
-    except Exception as exc:  # e.g. a non-string
-        raise UnknownNameError("liquid", liquid, liquid_names()) from exc
-    if profile.viscosity_pa_s is None or profile.viscosity_pa_s <= 0.0:
-        raise InvalidParameterError(
-            f"liquid {profile.name!r} has no physical viscosity (viscosity_pa_s or "
-            f"viscosity_cp, got {profile.viscosity_pa_s!r}); the pouring tasks observe it"
-        )
-    return profile
 
 
 def viscosity_feature(liquid: LiquidProfile) -> float:

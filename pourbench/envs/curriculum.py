@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pourbench.errors import check_finite, read_toml
+from pourbench.errors import ProfileFileError, check_finite, read_toml
 from pourbench.fluids import LiquidProfile, liquid_profile
 
 DEFAULT_CURRICULUM = Path(str(resources.files("pourbench") / "assets" / "curriculum.toml"))
@@ -72,7 +72,7 @@ def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
     """Read lessons from a TOML file (``[[lesson]]`` tables; the shipped file by default).
 
     Raises:
-        ValueError: naming the file, lesson and key: the file is not TOML, a lesson lacks a
+        ProfileFileError: naming the file, lesson and key: the file is not TOML, a lesson lacks a
             range or a fraction, a range is not ``[low, high]`` of finite numbers with
             low ≤ high, a density or viscosity is not > 0 or a FleX coefficient is negative,
             or the fractions are not ≥ 0 and do not sum to 1.
@@ -90,26 +90,27 @@ def load_curriculum(path: str | Path | None = None) -> tuple[Lesson, ...]:
                 and all(isinstance(v, int | float) and math.isfinite(v) for v in rng)
                 and rng[0] <= rng[1]
             ):
-                raise ValueError(
-                    f"{path}: lesson {i}: {key} must be [low, high] of finite numbers with "
-                    f"low <= high, got {rng!r}"
+                raise ProfileFileError(
+                    path,
+                    f"lesson[{i}].{key}",
+                    f"must be [low, high] of finite numbers with low <= high, got {rng!r}",
                 )
             positive = key == "density" or key in LOG_UNIFORM
             if rng[0] < 0 or (positive and rng[0] == 0):
                 least = "> 0" if positive else ">= 0"
-                raise ValueError(f"{path}: lesson {i}: {key} must be {least}, got {rng!r}")
+                raise ProfileFileError(path, f"lesson[{i}].{key}", f"must be {least}, got {rng!r}")
             ranges[key] = (float(rng[0]), float(rng[1]))
         fraction = entry.get("fraction")
         if not (isinstance(fraction, int | float) and math.isfinite(fraction) and fraction >= 0):
-            raise ValueError(
-                f"{path}: lesson {i}: fraction must be a number >= 0, got {fraction!r}"
+            raise ProfileFileError(
+                path, f"lesson[{i}].fraction", f"must be a number >= 0, got {fraction!r}"
             )
         lessons.append(Lesson(str(entry.get("name", f"lesson{i}")), float(fraction), ranges))
     if not lessons:
-        raise ValueError(f"{path}: no [[lesson]] tables")
+        raise ProfileFileError(path, "lesson", "no [[lesson]] tables")
     total = sum(lesson.fraction for lesson in lessons)
     if abs(total - 1.0) > 1e-6:
-        raise ValueError(f"{path}: lesson fractions sum to {total}, not 1")
+        raise ProfileFileError(path, "lesson", f"the fractions sum to {total}, not 1")
     return tuple(lessons)
 
 
@@ -129,7 +130,7 @@ def lesson_at(progress: float, lessons: tuple[Lesson, ...]) -> int:
     progress past 1, as a last rollout may overshoot its budget, gives the last lesson).
 
     Raises:
-        ValueError: ``progress`` is NaN, infinite or negative.
+        InvalidParameterError: ``progress`` is NaN, infinite or negative.
     """
     p = check_finite("progress", progress, minimum=0.0)
     edge = 0.0

@@ -91,8 +91,9 @@ class PourEnv(gym.Env):
 
     ``reset(options=...)`` accepts ``liquid`` (profile name), ``target_g``, ``container``
     (pouring container name), ``initial_g`` and ``start`` (x, y, height of the pouring
-    container's base relative to the receiving container's, m). Unknown names raise
-    ``ValueError`` listing the known ones.
+    container's base relative to the receiving container's, m): see
+    :class:`~pourbench.envs.options.ResetOptions`. Unknown names raise
+    :class:`~pourbench.errors.UnknownNameError` listing the known ones.
 
     ``info``: ``poured_g``, ``spilled_g``, ``remaining_g``, ``in_flight_g``, ``initial_g``,
     ``error_g``, ``target_g``, ``measured_g``, ``liquid``, ``container``, ``tilt``,
@@ -122,7 +123,7 @@ class PourEnv(gym.Env):
         self, render_mode: str | None = None, record_path: str | None = None, **kwargs: Any
     ) -> None:
         if render_mode not in (None, *self.metadata["render_modes"]):
-            raise ValueError(
+            raise InvalidParameterError(
                 f"render_mode must be None, 'human' or 'rgb_array', got {render_mode!r}"
             )
         if render_mode == "human":

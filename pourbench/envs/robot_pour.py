@@ -58,7 +58,6 @@ rerun recording of the episode.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -67,22 +66,24 @@ import mujoco
 import numpy as np
 from gymnasium.error import ResetNeeded
 
-from pourbench.containers import container_names, get_container
-from pourbench.envs.action_handler import ACTION_MODES, handle_actions
+from pourbench.containers import get_container
+from pourbench.envs.action_handler import as_actions, handle_actions
 from pourbench.envs.core import (
     OBS_BOUND,
     OBS_SIZE,
     PourConfig,
     default_solver_config,
     draw_amounts,
-    known_liquid,
     liquid_account,
     particle_grams,
+    pouring_candidates,
+    refuse_container,
     viscosity_feature,
 )
 from pourbench.envs.curriculum import draw_liquid, load_curriculum
 from pourbench.envs.ft_sensor import gravity_compensate, vertical_load
 from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
+from pourbench.envs.options import ResetOptions, known_liquid
 from pourbench.envs.pour import RENDER_SIZE, action_space, check_settings, observation_space
 from pourbench.envs.reward import ErrorHistory, extrinsic_reward
 from pourbench.errors import (
@@ -95,6 +96,12 @@ from pourbench.errors import (
 from pourbench.fluids import MujocoCoupling, PBFSolver
 from pourbench.fluids.accounting import LiquidCounter
 from pourbench.geometry.fill import container_lattice
+from pourbench.geometry.rotation import (
+    axis_angle_quat,
+    quat_conj,
+    quat_mul,
+    rotation_error,
+)
 from pourbench.planners import (
     MinkController,
     NMPCConfig,
@@ -105,7 +112,6 @@ from pourbench.planners import (
 from pourbench.planners.distance import Box, obstacle_from_mujoco_geom
 from pourbench.planners.kinematics import ArmKinematics
 from pourbench.planners.robots import joint_speed_limits
-from pourbench.planners.rollout import rotation_error
 from pourbench.scene import ROBOTS, STATIC_CONTYPE, body_clearance, build_pour_scene
 
 PLANNERS: tuple[str, ...] = ("nmpc", "mink")
@@ -116,7 +122,6 @@ CUP_CAPSULE = "pouring_col"
 EE_SITE = "pouring_rim"
 # task frame -> world: task x (toward the receiving container) is world +y
 _TASK_R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-_RESET_OPTIONS = ("container", "initial_g", "liquid", "start", "target_g")
 
 
 @dataclass(frozen=True)
@@ -174,17 +179,6 @@ def _add_cup_capsule(spec: mujoco.MjSpec, cup: object) -> None:
     )
 
 
-def _axis_quat(axis: np.ndarray, angle: float) -> np.ndarray:
-    """(w, x, y, z) rotation by ``angle`` (rad) about unit ``axis``."""
-    return np.r_[np.cos(angle / 2), np.sin(angle / 2) * np.asarray(axis, float)]
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    out = np.zeros(4)
-    mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
-    return out
-
-
 class RobotPourEnv(gym.Env):
     """Pour a target amount with a robot: Pour-v0's task, its spaces, and a planner that
     executes the action handler's end-effector motion (see the module docstring).
@@ -212,7 +206,7 @@ class RobotPourEnv(gym.Env):
             raw and filtered); written to ``<record_path>.partial`` and moved into place by
             :meth:`close`.
         **kwargs: fields of :class:`~pourbench.envs.core.PourConfig`. The pouring container
-            is the first of ``container_set`` (the training cup by default).
+            is ``container``, else the first of ``container_set`` (the training cup).
 
     Raises:
         UnknownNameError: unknown robot or planner (a ``ValueError`` naming it and the known
@@ -241,15 +235,8 @@ class RobotPourEnv(gym.Env):
             )
         check_settings(kwargs)
         cfg = PourConfig(**kwargs)
-        if cfg.action_mode not in ACTION_MODES:
-            raise InvalidParameterError(
-                f"unknown action_mode {cfg.action_mode!r}; known: {list(ACTION_MODES)}"
-            )
-        if cfg.liquid is not None:
-            known_liquid(cfg.liquid)
+        self.default_liquid = None if cfg.liquid is None else known_liquid(cfg.liquid)
         self.settings = settings or RobotSettings()
-        if not isinstance(self.settings, RobotSettings):
-            raise InvalidParameterError(f"settings must be RobotSettings, got {settings!r}")
         self.robot, self.planner_name, self.config = robot, planner, cfg
         self.render_mode = render_mode
         self._renderer: mujoco.Renderer | None = None
@@ -257,7 +244,7 @@ class RobotPourEnv(gym.Env):
         self.action_space = action_space()
         self.lessons = load_curriculum(cfg.curriculum)
         self.set_lesson(cfg.lesson)
-        self.container = container_names(cfg.container_set)[0]
+        self.container = pouring_candidates(cfg)[0]
         self.pour = get_container(self.container)
         self.recv = get_container(cfg.receiving)
         scfg = cfg.solver or default_solver_config()
@@ -387,7 +374,7 @@ class RobotPourEnv(gym.Env):
         """End-effector target (rim centre, quaternion w x y z) of a task-frame base point
         and tilt."""
         rim = self.origin + _TASK_R @ (base_task + np.array([0.0, 0.0, self.pour.rim_height]))
-        return rim, _quat_mul(_axis_quat(self.tilt_axis, tilt), self.rim_quat0)
+        return rim, quat_mul(axis_angle_quat(self.tilt_axis, tilt), self.rim_quat0)
 
     def _measured(self) -> tuple[np.ndarray, float, np.ndarray]:
         """Rim centre (world), signed tilt about the task's tilt axis (rad), quaternion."""
@@ -395,7 +382,7 @@ class RobotPourEnv(gym.Env):
         q = np.zeros(4)
         mujoco.mju_mat2Quat(q, self.data.site_xmat[self.model.site(EE_SITE).id])
         # relative rotation from home; its angle about the tilt axis
-        rel = _quat_mul(q, np.r_[self.rim_quat0[0], -self.rim_quat0[1:]])
+        rel = quat_mul(q, quat_conj(self.rim_quat0))
         if rel[0] < 0:
             rel = -rel
         tilt = 2.0 * np.arctan2(float(rel[1:] @ self.tilt_axis), rel[0])
@@ -417,43 +404,20 @@ class RobotPourEnv(gym.Env):
         if seed is not None or self.rng is None:
             self.rng = np.random.default_rng(seed)
         rng = self.rng
-        if options is not None and not isinstance(options, Mapping):
-            raise InvalidParameterError(
-                f"reset options must be a dict such as {{'liquid': 'water'}}, got {options!r}"
-            )
-        opts = dict(options or {})
-        unknown = sorted(set(opts) - set(_RESET_OPTIONS))
-        if unknown:
-            raise InvalidParameterError(
-                f"unknown reset options {unknown}; known: {list(_RESET_OPTIONS)}"
-            )
-        if opts.get("container", self.container) != self.container:
-            raise UnknownNameError("pouring container", opts["container"], (self.container,))
-        liq = opts.get("liquid", cfg.liquid)
-        if liq is None:
+        opts = ResetOptions.parse(options)
+        if opts.container not in (None, self.container):
+            refuse_container(opts.container, (self.container,))
+        liquid = opts.liquid if opts.liquid is not None else self.default_liquid
+        if liquid is None:
             liquid = draw_liquid(self.lessons, self.lesson, rng, cfg.rehearse)
-        else:
-            liquid = known_liquid(liq)
         target, initial = draw_amounts(
             opts, rng, cfg, liquid, self.container, self.capacity_g(liquid.density),
             self.solver_config.spacing,
         )  # fmt: skip
-        start = opts.get("start")
+        start = opts.start
         if start is None:
-            start = [
-                rng.uniform(*cfg.start_x),
-                rng.uniform(*cfg.start_y),
-                rng.uniform(*cfg.start_height),
-            ]
-        try:
-            start = np.asarray(start, float)
-        except (TypeError, ValueError):
-            start = np.full(1, np.nan)  # refused just below
-        if start.shape != (3,) or not np.all(np.isfinite(start)):
-            raise InvalidParameterError(
-                f"start must be three finite numbers (x, y, height of the pouring container's "
-                f"base relative to the receiving container's, m), got {opts.get('start')!r}"
-            )
+            xy = [rng.uniform(*cfg.start_x), rng.uniform(*cfg.start_y)]
+            start = np.array([*xy, rng.uniform(*cfg.start_height)])
         # the robot at home, the pouring arm moved to the start by IK (checked before any
         # state changes: a refused reset leaves the episode as it was)
         goal_p, goal_q = self._to_world(start, 0.0)
@@ -517,7 +481,7 @@ class RobotPourEnv(gym.Env):
         for _ in range(200):
             s = self.kin.forward(q)
             ep = goal_p - s.ee_pos[0]
-            rel = _quat_mul(goal_q, np.r_[s.ee_quat[0][0], -s.ee_quat[0][1:]])
+            rel = quat_mul(goal_q, quat_conj(s.ee_quat[0]))
             er = 2.0 * rel[1:] * (1.0 if rel[0] >= 0 else -1.0)
             e = np.r_[ep, er]
             if np.linalg.norm(ep) < 1e-5 and np.linalg.norm(er) < 1e-4:
@@ -532,19 +496,10 @@ class RobotPourEnv(gym.Env):
         if not self._was_reset or self._done:
             when = "before its first reset" if not self._was_reset else "after its episode ended"
             raise ResetNeeded(f"PourRobot-v0 was stepped {when}; call reset() first")
-        try:
-            a = np.asarray(action, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise InvalidParameterError(f"action must be two numbers, got {action!r}") from exc
-        if a.size != 2:
-            raise InvalidParameterError(
-                f"action must have shape (2,): (tilt rate, approach rate); got shape {a.shape}"
-            )
-        if not np.all(np.isfinite(a)):
-            raise InvalidParameterError(f"action must be finite, got {a.ravel().tolist()}")
+        a = as_actions(action, 1)
         cfg, d, m = self.config, self.data, self.model
         new_base, new_tilt, _ = handle_actions(
-            a.reshape(1, 2), self.base, self.tilt, np.zeros((1, 3)), self._half,
+            a, self.base, self.tilt, np.zeros((1, 3)), self._half,
             self.recv.rim_height, self.filter.value_g, self.target_g, cfg.tolerance_g,
             self.control_dt, cfg.limits, cfg.action_mode,
         )  # fmt: skip
@@ -723,7 +678,7 @@ class RobotPourEnv(gym.Env):
         for k, name in enumerate(("pouring", "receiving")):
             b = m.body(name).id
             poses[0, k, :3] = d.xpos[b]
-            poses[0, k, 3:6], poses[0, k, 6] = d.xquat[b][1:], d.xquat[b][0]
+            poses[0, k, 3:] = d.xquat[b]
         counts = self._counter.count(np.array([0]), poses, np.array([[0, 1]]))
         out = liquid_account(*counts, self.particle_g, [self.initial_g], self.target_g)
         out["measured_g"] = self.filter.value_g.copy()

@@ -18,6 +18,7 @@ import numpy as np
 import rerun as rr
 
 from pourbench.fluids.record import FluidRecorder
+from pourbench.geometry.rotation import quat_to_matrix
 from pourbench.view import local_meshes
 
 if TYPE_CHECKING:
@@ -27,12 +28,6 @@ TARGET_COLOUR = (255, 160, 0)
 ACTUAL_COLOUR = (0, 200, 80)
 AXIS_LENGTH = 0.06
 """m: the drawn rim axis."""
-
-
-def _rim_axis(quat_wxyz: np.ndarray) -> np.ndarray:
-    """The rim frame's z axis in the world (the quaternion's third rotation column)."""
-    w, x, y, z = quat_wxyz
-    return np.array([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)])
 
 
 class RobotRecorder:
@@ -70,7 +65,9 @@ class RobotRecorder:
             rec.log(
                 f"world/ee/{name}_axis",
                 rr.Arrows3D(
-                    origins=[pos], vectors=[AXIS_LENGTH * _rim_axis(quat)], colors=[colour]
+                    origins=[pos],
+                    vectors=[AXIS_LENGTH * quat_to_matrix(quat)[:, 2]],
+                    colors=[colour],
                 ),
             )
         rec.log("plots/ee_position_error_m", rr.Scalars(float(np.linalg.norm(p - tp))))

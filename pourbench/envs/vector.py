@@ -20,7 +20,7 @@ closes the env); :meth:`PourVectorEnv.close` ends every worker.
 from __future__ import annotations
 
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -29,6 +29,7 @@ from gymnasium.vector.utils import batch_space
 
 from pourbench.envs.action_handler import as_actions
 from pourbench.envs.core import PourBatch, check_memory
+from pourbench.envs.options import ResetOptions
 from pourbench.envs.pour import action_space, make_config, observation_space
 from pourbench.envs.workers import (
     LocalGroup,
@@ -69,11 +70,13 @@ class PourVectorEnv(VectorEnv):
     ) -> None:
         mode = _MODES.get(autoreset_mode, autoreset_mode)
         if mode not in (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP):
-            raise ValueError(
+            raise InvalidParameterError(
                 f"autoreset_mode must be one of {list(_MODES)}, got {autoreset_mode!r}"
             )
         if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+            raise InvalidParameterError(
+                f"render_mode must be None or 'rgb_array', got {render_mode!r}"
+            )
         self.num_envs = check_int("num_envs", num_envs, minimum=1)
         if workers is None:
             workers = default_workers(self.num_envs)
@@ -164,8 +167,11 @@ class PourVectorEnv(VectorEnv):
         else:
             first = check_int("seed", seed, minimum=0)
             seeds = [first + k for k in range(self.num_envs)]
-        opts = dict(options or {})
-        mask = np.asarray(opts.pop("reset_mask", np.ones(self.num_envs, bool)))
+        mask = np.ones(self.num_envs, bool)
+        if isinstance(options, Mapping) and "reset_mask" in options:
+            options = dict(options)
+            mask = np.asarray(options.pop("reset_mask"))
+        opts = ResetOptions.parse(options)
         if mask.shape != (self.num_envs,) or mask.dtype != bool:
             raise InvalidParameterError(
                 f"reset_mask must be {self.num_envs} booleans, got {mask.tolist()!r}"

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from pourbench.envs.core import PourBatch, PourConfig
+from pourbench.envs.options import ResetOptions
 
 _START_TIMEOUT_S = 600.0  # a worker that has not built its worlds by then is stopped
 _CLOSE_TIMEOUT_S = 10.0
@@ -54,7 +55,7 @@ class WorldGroup:
         self.batch = PourBatch(num_worlds, config)
 
     def reset(
-        self, seeds: list[int | None], mask: np.ndarray, options: dict[str, Any]
+        self, seeds: list[int | None], mask: np.ndarray, options: ResetOptions
     ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Reset the worlds in ``mask`` (seed ``seeds[k]``, the other ``options``); every
         world's observation and info (:meth:`PourBatch.reset_info`)."""

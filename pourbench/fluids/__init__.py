@@ -1,36 +1,49 @@
-"""Liquids: a position-based-fluids solver in NVIDIA Warp, two-way coupled to MuJoCo."""
+"""Liquids: a position-based-fluids solver in NVIDIA Warp, two-way coupled to MuJoCo.
 
-from pourbench.fluids.config import SolverConfig
-from pourbench.fluids.coupling import MujocoCoupling
-from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics, liquid_metrics_all
-from pourbench.fluids.params import LiquidProfile, liquid_names, liquid_profile, load_liquids
-from pourbench.fluids.solver import PBFSolver
-from pourbench.geometry.shapes import (
-    BoxShell,
-    ContainerShape,
-    RevolvedShell,
-    bottle,
-    bowl,
-    cup,
-    tray,
-)
+The names below load on first use, so that ``pourbench.fluids.params`` (the liquid profiles)
+imports without Warp.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+_HOME = {
+    "SolverConfig": "config",
+    "MujocoCoupling": "coupling",
+    "LiquidMetrics": "metrics",
+    "liquid_metrics": "metrics",
+    "liquid_metrics_all": "metrics",
+    "LiquidProfile": "params",
+    "liquid_names": "params",
+    "liquid_profile": "params",
+    "load_liquids": "params",
+    "PBFSolver": "solver",
+}
 
 __all__ = [
-    "BoxShell",
-    "ContainerShape",
     "LiquidMetrics",
     "LiquidProfile",
     "MujocoCoupling",
     "PBFSolver",
-    "RevolvedShell",
     "SolverConfig",
-    "bottle",
-    "bowl",
-    "cup",
     "liquid_metrics",
     "liquid_metrics_all",
     "liquid_names",
     "liquid_profile",
     "load_liquids",
-    "tray",
 ]
+
+if TYPE_CHECKING:
+    from pourbench.fluids.config import SolverConfig
+    from pourbench.fluids.coupling import MujocoCoupling
+    from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics, liquid_metrics_all
+    from pourbench.fluids.params import LiquidProfile, liquid_names, liquid_profile, load_liquids
+    from pourbench.fluids.solver import PBFSolver
+
+
+def __getattr__(name: str) -> object:
+    if name not in _HOME:
+        raise AttributeError(f"module 'pourbench.fluids' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"pourbench.fluids.{_HOME[name]}"), name)

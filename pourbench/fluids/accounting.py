@@ -22,6 +22,7 @@ import warp as wp
 from pourbench.fluids import kernels as K
 from pourbench.fluids.colliders import shape_kind
 from pourbench.fluids.solver import PBFSolver
+from pourbench.geometry.rotation import warp_transforms
 from pourbench.geometry.shapes import ContainerShape
 
 
@@ -133,7 +134,7 @@ class LiquidCounter:
         self, worlds: np.ndarray, poses: np.ndarray, shape_index: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Counts for the worlds ``worlds`` (rows, distinct), whose containers have the
-        world poses ``poses`` (rows, k, 7: x y z qx qy qz qw) and the shapes ``shape_index``
+        world poses ``poses`` (rows, k, 7: x y z qw qx qy qz) and the shapes ``shape_index``
         (rows, k) of this counter's list.
 
         Returns:
@@ -155,7 +156,7 @@ class LiquidCounter:
         table = np.full(s.num_worlds, -1, np.int32)
         table[np.asarray(worlds)] = np.arange(rows, dtype=np.int32)
         row_of.assign(table)
-        pose_arr.assign(np.asarray(poses, np.float32).reshape(rows, k, 7))
+        pose_arr.assign(warp_transforms(poses).reshape(rows, k, 7))
         shape_arr.assign(np.asarray(shape_index, np.int32))
         level = np.full(rows, np.inf)
         if k:

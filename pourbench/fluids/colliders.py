@@ -19,7 +19,7 @@ KIND_NAMES = {name: code for code, name in enumerate(K.KINDS)}
 class Collider:
     """One signed-distance collider in one world.
 
-    ``pose`` is a 7-vector (x, y, z, qx, qy, qz, qw) in the world frame and ``com`` the point
+    ``pose`` is a 7-vector (x, y, z, qw, qx, qy, qz) in the world frame and ``com`` the point
     (world frame, m) its reaction torque is taken about; once the collider is added to a
     solver both are views of a row of the solver's pose table, which
     :meth:`PBFSolver.set_collider_poses` writes. ``body`` is a slot in the solver's
@@ -31,7 +31,7 @@ class Collider:
     params: np.ndarray
     body: int = -1
     mesh: wp.Mesh | None = None
-    pose: np.ndarray = field(default_factory=lambda: np.array([0, 0, 0, 0, 0, 0, 1.0]))
+    pose: np.ndarray = field(default_factory=lambda: np.array([0, 0, 0, 1.0, 0, 0, 0]))
     shape: ContainerShape | None = None
     com: np.ndarray = field(default_factory=lambda: np.zeros(3))
 

@@ -33,6 +33,7 @@ from pourbench.fluids import kernels as K
 from pourbench.fluids.colliders import shape_kind
 from pourbench.fluids.meshes import convex_hull
 from pourbench.fluids.solver import PBFSolver
+from pourbench.geometry.rotation import quat_right_matrix
 from pourbench.geometry.shapes import ContainerShape
 
 _GEOM_KIND = {
@@ -43,13 +44,6 @@ _GEOM_KIND = {
     mujoco.mjtGeom.mjGEOM_BOX: "box",
     mujoco.mjtGeom.mjGEOM_MESH: "mesh",
 }
-
-
-def quat_right_matrix(b: np.ndarray) -> np.ndarray:
-    """The 4×4 matrix R(b) with a ⊗ b = R(b) a for (w, x, y, z) quaternions (Hamilton
-    product), so that a stack of bindings composes with one matrix product."""
-    w, x, y, z = np.asarray(b, float)
-    return np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
 
 
 @dataclass
@@ -248,9 +242,9 @@ class MujocoCoupling:
                 d.xipos[bodies],
             )
         q = (g.right_mul @ xq[:, :, None])[:, :, 0]  # body quaternion ⊗ local quaternion
-        poses = np.empty((n, 7))  # x y z qx qy qz qw
+        poses = np.empty((n, 7))
         poses[:, :3] = xp + (xm.reshape(n, 3, 3) @ g.local_pos[:, :, None])[:, :, 0]
-        poses[:, 3:6], poses[:, 6] = q[:, 1:], q[:, 0]
+        poses[:, 3:] = q
         self.solver.set_collider_poses(g.colliders, poses, com)
 
     def apply(self) -> None:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from pourbench.errors import check_finite
+from pourbench.errors import InvalidParameterError, check_finite
 from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.metrics import LiquidMetrics, liquid_metrics
@@ -129,7 +129,7 @@ def two_cup_scene(
     tgt = coupling.add_container("target", target)
     liquids = [liquid] * num_worlds if isinstance(liquid, str | LiquidProfile) else list(liquid)
     if len(liquids) != num_worlds:
-        raise ValueError(f"{len(liquids)} liquids given for {num_worlds} worlds")
+        raise InvalidParameterError(f"{len(liquids)} liquids given for {num_worlds} worlds")
     for w, liq in enumerate(liquids):
         solver.set_liquid(w, liq)
         if mass_g > 0:

@@ -60,8 +60,9 @@ from pourbench.fluids.config import DensityConstants, SolverConfig
 from pourbench.fluids.meshes import check_closed_mesh
 from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.step import StepLaunches
+from pourbench.fluids.warp_setup import load_kernels
 from pourbench.geometry.fill import container_lattice
-from pourbench.geometry.rotation import transform_points
+from pourbench.geometry.rotation import transform_points, warp_transforms
 from pourbench.geometry.shapes import BoxShell, ContainerShape, RevolvedShell
 
 RUNAWAY_ENERGY = 3.0
@@ -110,8 +111,6 @@ class PBFSolver:
 
     def __init__(self, num_worlds: int = 1, config: SolverConfig | None = None) -> None:
         self.num_worlds = check_int("num_worlds", num_worlds, minimum=1)
-        if config is not None and not isinstance(config, SolverConfig):
-            raise InvalidParameterError(f"config must be a SolverConfig, got {config!r}")
         self.config = config or SolverConfig()
         if self.config.device != "cpu":
             count = wp.get_cuda_device_count() if cuda_available() else 0
@@ -122,6 +121,7 @@ class PBFSolver:
                     "use device='cpu'"
                 )
         self.device = wp.get_device(self.config.device)
+        load_kernels([K, V], self.device)
         mode = self.config.pair_lists
         if mode == "auto":
             mode = "full" if self.device.is_cuda else "half"
@@ -188,7 +188,7 @@ class PBFSolver:
                 "box_shell".
             params: the kind's sizes (box: half-extents; sphere: radius; capsule/cylinder:
                 radius, half-length; mesh: unused; container shells: ``kernel_params()``).
-            pose: (x, y, z, qx, qy, qz, qw), world frame.
+            pose: (x, y, z, qw, qx, qy, qz), world frame.
             body: reaction-force slot from :meth:`new_body_slot`, or −1 for none.
             mesh: (vertices (n, 3), triangles (m, 3)) for kind "mesh", local frame: closed and
                 wound outward (:func:`pourbench.fluids.meshes.check_closed_mesh`).
@@ -419,9 +419,9 @@ class PBFSolver:
         ones are the last step's end poses, copied when it finished; with ``prev_too`` both
         are set). Arrays are updated in place, so the recorded kernel launches stay valid."""
         if len(self._layout.order):
-            poses = self._pose_table[self._layout.order].astype(np.float32)
+            poses = warp_transforms(self._pose_table[self._layout.order])
             coms = self._com_table[self._layout.order].astype(np.float32)
-        else:  # one placeholder collider that no world owns
+        else:  # one placeholder collider that no world owns (Warp's layout)
             poses = np.array([[0, 0, 0, 0, 0, 0, 1]], np.float32)
             coms = np.zeros((1, 3), np.float32)
         last = self._uploaded_poses
@@ -446,7 +446,7 @@ class PBFSolver:
     def _track_wall_speed(self, start: np.ndarray, end: np.ndarray) -> None:
         """Raise each world's fastest collider surface speed (m/s) by this step's moves: a
         collider's origin speed plus its angular speed times its bounding radius. ``start``
-        and ``end`` are (colliders, 7) poses in upload order (grouped by world)."""
+        and ``end`` are (colliders, 7) Warp transforms in upload order (grouped by world)."""
         d = end[:, :3] - start[:, :3]
         move = np.sqrt(np.einsum("ij,ij->i", d, d))
         cos_half = np.minimum(np.abs(np.einsum("ij,ij->i", end[:, 3:], start[:, 3:])), 1.0)
@@ -477,7 +477,7 @@ class PBFSolver:
     def set_collider_poses(
         self, indices: list[int] | np.ndarray, poses: np.ndarray, com: np.ndarray | None = None
     ) -> None:
-        """Set the world poses (n, 7: x y z qx qy qz qw; m, unit quaternion) of colliders
+        """Set the world poses (n, 7: x y z qw qx qy qz; m, unit quaternion) of colliders
         ``indices``: one write of those rows of the pose table.
 
         Set them before :meth:`step` to the colliders' end-of-step poses (the last call before

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pourbench.errors import InvalidParameterError
 from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.scenarios import GRAVITY, tilt_schedule, two_cup_scene
@@ -77,7 +78,9 @@ def rest_in_cup(
     results = []
     for t0, t1 in windows:
         if t0 < s.time - 1e-9 or t1 <= t0:
-            raise ValueError(f"rest windows must be increasing and disjoint, got {windows}")
+            raise InvalidParameterError(
+                f"rest windows must be increasing and disjoint, got {windows}"
+            )
         s.step(round((t0 - s.time) / s.config.dt))
         every = max(1, round((t1 - t0) / s.config.dt / samples))
         errors, maxima, speeds, bulk = [], [], [], []
@@ -350,7 +353,7 @@ def held_sphere_lift(
     bodies = []
     for w, liquid in enumerate(liquids):
         bodies.append(s.new_body_slot())
-        s.add_collider(w, "sphere", [radius], pose=[0, 0, tank / 2, 0, 0, 0, 1], body=bodies[-1])
+        s.add_collider(w, "sphere", [radius], pose=[0, 0, tank / 2, 1, 0, 0, 0], body=bodies[-1])
         s.set_liquid(w, liquid)
         rho = s.liquids[w].density
         s.fill(w, s.add_container(w, shell), rho * (tank**3 - volume) * 1e3, liquid)

@@ -1,4 +1,5 @@
-"""Initialise Warp once, without its CUDA-driver notice on machines that have no GPU.
+"""Initialise Warp once, without its CUDA-driver notice on machines that have no GPU, and
+load the solver's kernel modules before any timed work, saying so when they must compile.
 
 Warp's native library writes "Warp CUDA warning: Could not find or load the NVIDIA CUDA
 driver …" to the process's stderr when it initialises on a machine without the driver. CPU is
@@ -6,6 +7,10 @@ pourbench's default, so on such machines that line would open the output of ever
 :func:`init_warp` initialises Warp with file descriptor 2 captured and writes everything else
 it printed back to stderr. A run that asks for ``device="cuda"`` there still gets pourbench's
 own error (:func:`pourbench.fluids.solver.cuda_available` is checked first).
+
+Warp compiles a kernel module on its first launch and caches the binary. The first run after
+an install or an update of the kernels compiles for minutes; :func:`load_kernels` does it up
+front with a line on stderr, so that no progress bar times the compile as a step.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
+from types import ModuleType
 
 import warp as wp
 
@@ -46,3 +52,27 @@ def init_warp() -> None:
             if rest:
                 sys.stderr.write(rest)
                 sys.stderr.flush()
+
+
+def load_kernels(modules: list[ModuleType], device: wp.context.Device) -> None:
+    """Load ``modules``' kernels for ``device`` now; a line on stderr first when any of them
+    is not in Warp's kernel cache and so compiles."""
+    block_dim = 1 if device.is_cpu else None  # Warp launches CPU kernels with block_dim 1
+    cache = wp.config.kernel_cache_dir
+    missing = [
+        m.__name__
+        for m in modules
+        if not os.path.isdir(
+            os.path.join(cache, wp.get_module(m.__name__).get_module_identifier(block_dim))
+        )
+    ]
+    if missing:
+        print(
+            f"pourbench: compiling the liquid solver's Warp kernels for {device} "
+            f"({', '.join(missing)}): the first run after an install takes minutes, later "
+            "runs load them from Warp's cache",
+            file=sys.stderr,
+            flush=True,
+        )
+    for m in modules:
+        wp.load_module(m, device=device, block_dim=block_dim)

@@ -4,6 +4,7 @@ offline baselines (OMPL RRT-Connect / RRT / PRM*, hand-written STOMP and CHOMP).
 A library: it uses MuJoCo models and never imports :mod:`pourbench.envs`.
 """
 
+from pourbench.geometry.rotation import rotation_error
 from pourbench.planners.distance import (
     Box,
     Capsule,
@@ -16,7 +17,7 @@ from pourbench.planners.kinematics import ArmKinematics, ArmState, point_jacobia
 from pourbench.planners.mink_controller import MinkController, MinkResult
 from pourbench.planners.nmpc import HESSIANS, NMPCConfig, NMPCPlanner, NMPCResult
 from pourbench.planners.robots import ARMS, ArmSpec, arm_kinematics, arm_spec, geom_obstacles
-from pourbench.planners.rollout import Rollout, rotation_error, run_to_goal
+from pourbench.planners.rollout import Rollout, run_to_goal
 from pourbench.planners.world import PlanningWorld
 
 __all__ = [

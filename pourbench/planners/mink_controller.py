@@ -26,9 +26,9 @@ from pourbench.errors import (
     check_positive,
     check_quat,
 )
+from pourbench.geometry.rotation import rotation_error
 from pourbench.planners.distance import Obstacle
 from pourbench.planners.kinematics import joint_speeds
-from pourbench.planners.rollout import rotation_error
 from pourbench.planners.world import PlanningWorld
 
 

@@ -250,11 +250,7 @@ class NMPCPlanner:
     """
 
     def __init__(self, kin: ArmKinematics, config: NMPCConfig | None = None) -> None:
-        if not isinstance(kin, ArmKinematics):
-            raise InvalidParameterError(f"kin must be an ArmKinematics, got {kin!r}")
         config = config or NMPCConfig()
-        if not isinstance(config, NMPCConfig):
-            raise InvalidParameterError(f"config must be an NMPCConfig, got {config!r}")
         n = kin.n
         speed = joint_speeds(config.max_joint_speed, n)
         m = config.joint_limit_margin
@@ -570,7 +566,7 @@ class NMPCPlanner:
         P = ev.sd.size
         mu = np.zeros(P)
         # BFGS starts every call from the exact Hessian of the input term 2R̄ (carrying the
-        # previous call's matrix over, shifted, was tried and needed more iterations).
+        # previous call's matrix over, shifted, takes more iterations).
         B = np.diag(2.0 * self.sqrt_rbar**2) if c.hessian == "bfgs" else None
         status = "iteration_cap"
         k = 0

@@ -19,6 +19,7 @@ from pourbench.errors import (
     check_int,
     check_quat,
 )
+from pourbench.geometry.rotation import rotation_error
 from pourbench.planners.distance import Obstacle
 from pourbench.planners.kinematics import ArmKinematics
 
@@ -28,21 +29,6 @@ class OnlinePlanner(Protocol):
     ``.solve_time_s`` and ``.iterations``."""
 
     def plan(self, q0, goal_pos, goal_quat, obstacles=()): ...
-
-
-def rotation_error(quat: np.ndarray, goal_quat: np.ndarray) -> float:
-    """Angle (rad) of the rotation between two unit quaternions (w, x, y, z).
-
-    Raises:
-        InvalidParameterError: a quaternion holds NaN or inf (it would read as no error).
-    """
-    c = abs(float(np.dot(quat, goal_quat)))
-    if not c <= 1e300:  # NaN (or inf): an unknown rotation, never "reached"
-        raise InvalidParameterError(
-            f"quaternions must be finite, got {np.asarray(quat).tolist()} and "
-            f"{np.asarray(goal_quat).tolist()}"
-        )
-    return 2.0 * float(np.arccos(min(1.0, c)))
 
 
 @dataclass

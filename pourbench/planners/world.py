@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 
 from pourbench.errors import InvalidParameterError, UnknownNameError, check_array, check_positive
+from pourbench.geometry.rotation import quat_z_to
 from pourbench.planners.distance import Box, Capsule, Obstacle, Sphere, check_obstacles
 from pourbench.planners.kinematics import check_vector
 
@@ -43,21 +44,6 @@ def _geom(ob: Obstacle) -> tuple[mujoco.mjtGeom, list[float]]:
     return mujoco.mjtGeom.mjGEOM_CAPSULE, [ob.radius, half, 0.0]
 
 
-def _quat_z_to(axis: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) rotating +z onto ``axis``."""
-    z = np.array([0.0, 0.0, 1.0])
-    norm = np.linalg.norm(axis)
-    if norm == 0.0:  # a point (a capsule with a == b): any orientation
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    a = axis / norm
-    c = float(z @ a)
-    if c < -1.0 + 1e-12:
-        return np.array([0.0, 1.0, 0.0, 0.0])
-    v = np.cross(z, a)
-    q = np.array([1.0 + c, *v])
-    return q / np.linalg.norm(q)
-
-
 def _pose(ob: Obstacle) -> tuple[np.ndarray, np.ndarray]:
     if isinstance(ob, Sphere):
         return ob.center, np.array([1.0, 0, 0, 0])
@@ -65,7 +51,7 @@ def _pose(ob: Obstacle) -> tuple[np.ndarray, np.ndarray]:
         q = np.zeros(4)
         mujoco.mju_mat2Quat(q, ob.rotation.reshape(-1))
         return ob.center, q
-    return 0.5 * (ob.a + ob.b), _quat_z_to(ob.b - ob.a)
+    return 0.5 * (ob.a + ob.b), quat_z_to(ob.b - ob.a)
 
 
 class PlanningWorld:
@@ -96,8 +82,6 @@ class PlanningWorld:
         static_geoms: Sequence[str] = (),
         base_qpos: np.ndarray | None = None,
     ) -> None:
-        if not isinstance(spec, mujoco.MjSpec):
-            raise InvalidParameterError(f"spec must be a mujoco.MjSpec, got {type(spec).__name__}")
         obstacles = check_obstacles(obstacles)
         names = {g.name for g in spec.geoms}
         for g in (*robot_geoms, *static_geoms):

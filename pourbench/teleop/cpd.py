@@ -410,7 +410,7 @@ def register_rigid(
         InvalidParameterError: malformed or non-finite points, different dimensions, ``w``
             outside [0, 1), bad ``max_iter`` / ``tol``, a degenerate point set (all
             points identical: ``X`` always, ``Y`` when ``scale`` is estimated), or an
-            ``init`` that is not a finite ``RigidResult`` of the same dimension.
+            ``init`` that is not finite or not of the same dimension.
     """
     X, Y, w = _check_pair(X, Y, w, max_iter, tol)
     if scale:
@@ -458,10 +458,8 @@ def register_rigid(
     return RigidResult(TY, R, t, float(s), float(s2), it)
 
 
-def _check_init(init: object, D: int) -> tuple[np.ndarray, np.ndarray, float, float]:
+def _check_init(init: RigidResult, D: int) -> tuple[np.ndarray, np.ndarray, float, float]:
     """``(R, t, s, sigma2)`` of a warm start, checked."""
-    if not isinstance(init, RigidResult):
-        raise InvalidParameterError(f"init must be a RigidResult, got {type(init).__name__}")
     R, t = np.asarray(init.R, dtype=float), np.asarray(init.t, dtype=float)
     if R.shape != (D, D) or t.shape != (D,):
         raise InvalidParameterError(

@@ -300,24 +300,15 @@ class SkillCPD:
         config: parameters.
 
     Raises:
-        InvalidParameterError: ``library`` is not a fitted ``SkillLibrary`` (no skills),
-            ``config`` is not a ``SkillCPDConfig``, or the mode may switch (``"standard"``,
-            ``"skill_cpd"``) and the library is not calibrated
+        InvalidParameterError: ``library`` has no skills (not fitted), or the mode may
+            switch (``"standard"``, ``"skill_cpd"``) and the library is not calibrated
             (:meth:`~pourbench.teleop.skills.SkillLibrary.calibrate`) for the recognition
             mode of ``config`` (``invariant_recognition``).
     """
 
     def __init__(self, library: SkillLibrary, config: SkillCPDConfig | None = None) -> None:
-        if not isinstance(library, SkillLibrary):
-            raise InvalidParameterError(
-                f"library must be a fitted SkillLibrary, got {type(library).__name__}"
-            )
         if not library.skills:
             raise InvalidParameterError("library has no skills: call library.fit() first")
-        if config is not None and not isinstance(config, SkillCPDConfig):
-            raise InvalidParameterError(
-                f"config must be a SkillCPDConfig, got {type(config).__name__}"
-            )
         self.library = library
         self.config = config or SkillCPDConfig()
         if self.config.mode != "none" and (
