@@ -59,7 +59,7 @@ def register_envs() -> None:
     if POUR_ID not in registry:
         register(
             id=POUR_ID,
-            entry_point="pourbench.envs.pour:PourEnv",
+            entry_point="pourbench.envs.pour_v0:PourEnv",
             vector_entry_point="pourbench.envs.vector:PourVectorEnv",
             # Gymnasium 1.4's passive checker never records the data of a first reset that
             # raised (a rejected option), and then fails every later step of the environment

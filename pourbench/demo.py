@@ -109,7 +109,7 @@ def _policy_demo(args: argparse.Namespace, policy: str, mass_g: float) -> int:
     """One Pour-v0 episode of the shipped ``policy`` pouring ``args.target_g`` of
     ``args.liquid`` from ``mass_g``, recorded to ``args.out``."""
     from pourbench.agents.loading import load_policy
-    from pourbench.envs.pour import PourEnv
+    from pourbench.envs.pour_v0 import PourEnv
 
     target_g = check_positive("target_g", getattr(args, "target_g", 100.0))
     if target_g >= mass_g:

@@ -74,7 +74,7 @@ def test_rehearsing_draws_every_lesson_up_to_the_current_one_alike() -> None:
 
 
 def test_a_rehearsing_env_pours_earlier_lessons_liquids() -> None:
-    from pourbench.envs.pour import PourEnv
+    from pourbench.envs.pour_v0 import PourEnv
 
     env = PourEnv(rehearse=True)
     env.set_lesson(2)

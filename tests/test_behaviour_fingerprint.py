@@ -18,7 +18,7 @@ import hashlib
 import numpy as np
 import pytest
 
-from pourbench.envs.pour import PourEnv
+from pourbench.envs.pour_v0 import PourEnv
 from pourbench.envs.vector import PourVectorEnv
 from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
 

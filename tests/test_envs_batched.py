@@ -12,7 +12,7 @@ import pytest
 import pourbench  # noqa: F401  (registers the ids)
 from pourbench.envs.core import PourBatch, estimate_memory
 from pourbench.envs.observation import counter_normals
-from pourbench.envs.pour import PourEnv
+from pourbench.envs.pour_v0 import PourEnv
 from pourbench.envs.vector import PourVectorEnv
 from pourbench.errors import CapacityError
 from pourbench.geometry.rotation import warp_transforms

@@ -18,7 +18,7 @@ import pourbench  # noqa: F401  (registers the ids)
 from pourbench.containers import container_names
 from pourbench.envs.action_handler import ActionLimits
 from pourbench.envs.core import PourBatch, PourConfig
-from pourbench.envs.pour import PourEnv
+from pourbench.envs.pour_v0 import PourEnv
 from pourbench.envs.reward import RewardConfig
 from pourbench.envs.vector import PourVectorEnv
 from pourbench.errors import InvalidParameterError, UnknownNameError
@@ -654,7 +654,7 @@ def test_a_liquid_without_a_physical_viscosity_is_refused() -> None:
 def test_the_denser_reward_charges_the_final_error_at_the_step_limit() -> None:
     """A policy that never pours is charged its whole target at the step limit by the denser
     option, and nothing beyond the step penalty by Algorithm 5 alone."""
-    from pourbench.envs.pour import PourEnv
+    from pourbench.envs.pour_v0 import PourEnv
     from pourbench.envs.reward import RewardConfig
 
     rewards = []

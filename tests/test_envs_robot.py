@@ -19,7 +19,7 @@ import pourbench  # noqa: F401  (registers the ids)
 from pourbench.agents.pd import PDPourer
 from pourbench.envs.ft_sensor import GRIPPER_MASS, gravity_compensate, vertical_load
 from pourbench.envs.observation import GRAVITY
-from pourbench.envs.pour import PourEnv
+from pourbench.envs.pour_v0 import PourEnv
 from pourbench.envs.robot_pour import RobotPourEnv, RobotSettings
 from pourbench.errors import CapacityError, InvalidParameterError, UnknownNameError
 

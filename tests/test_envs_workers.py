@@ -10,7 +10,7 @@ import pytest
 from world_probes import positions
 
 import pourbench  # noqa: F401  (registers the ids)
-from pourbench.envs.pour import PourEnv
+from pourbench.envs.pour_v0 import PourEnv
 from pourbench.envs.vector import PourVectorEnv
 from pourbench.envs.workers import WorkerError, default_workers, split
 from pourbench.errors import InvalidParameterError

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from pourbench.agents.loading import Policy, load_policy, load_sb3_policy
 from pourbench.argtypes import BUILTIN_POLICIES
-from pourbench.envs.pour import PourEnv, check_settings
+from pourbench.envs.pour_v0 import PourEnv, check_settings
 from pourbench.errors import check_int
 
 POLICIES = BUILTIN_POLICIES
@@ -102,7 +102,7 @@ def evaluate(
         seed: first episode's seed.
         progress: show a progress bar.
         **env_kwargs: :class:`~pourbench.envs.core.PourConfig` fields (e.g. ``liquid``),
-            or :class:`~pourbench.envs.pour.PourEnv`'s ``render_mode`` / ``record_path``.
+            or :class:`~pourbench.envs.pour_v0.PourEnv`'s ``render_mode`` / ``record_path``.
 
     Raises:
         InvalidParameterError: ``episodes`` not an integer >= 1, ``seed`` not an integer

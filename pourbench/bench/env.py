@@ -81,7 +81,7 @@ def run_case(
     the case, so both see the same machine load, until the baseline has had ``budget_s`` and
     ``min_steps`` of its own."""
     from pourbench.envs import PourConfig, default_solver_config
-    from pourbench.envs.pour import PourEnv
+    from pourbench.envs.pour_v0 import PourEnv
     from pourbench.envs.vector import PourVectorEnv
 
     scfg = dataclasses.replace(default_solver_config(), device=device)

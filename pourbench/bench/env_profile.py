@@ -66,7 +66,7 @@ def _timer(fn: Any, label: str, seconds: dict[str, float], calls: Counter) -> An
 def _make(worlds: int, graph: bool) -> tuple[Any, Any, np.ndarray]:
     """(env, its PourBatch, action) with the env's default solver, graphs on or off."""
     from pourbench.envs import default_solver_config
-    from pourbench.envs.pour import PourEnv
+    from pourbench.envs.pour_v0 import PourEnv
     from pourbench.envs.vector import PourVectorEnv
 
     scfg = dataclasses.replace(default_solver_config(), graph=graph)

@@ -33,7 +33,7 @@ def robot_case(
     robot: str, planner: str, budget_s: float = 5.0, min_steps: int = 3
 ) -> dict[str, Any]:
     """Time PourRobot-v0 with ``robot`` and ``planner`` against a single Pour-v0 env."""
-    from pourbench.envs.pour import PourEnv
+    from pourbench.envs.pour_v0 import PourEnv
     from pourbench.envs.robot_pour import RobotPourEnv
 
     options = {"target_g": 100.0}

@@ -145,7 +145,7 @@ def pours(policy: str, liquid: str, container: str | None, target_g: float, coun
     from pourbench.agents.evaluate import pour_episode
     from pourbench.agents.loading import load_policy
     from pourbench.envs.options import known_liquid
-    from pourbench.envs.pour import PourEnv
+    from pourbench.envs.pour_v0 import PourEnv
     from pourbench.errors import CapacityError
 
     env = PourEnv(liquid=liquid, container_set="training" if container is None else "novel")

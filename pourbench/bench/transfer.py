@@ -79,7 +79,7 @@ def episode(policy: str, env_name: str, liquid: str, target_g: float, seed: int)
     from pourbench.agents.evaluate import pour_episode
 
     if env_name == "pour":
-        from pourbench.envs.pour import PourEnv
+        from pourbench.envs.pour_v0 import PourEnv
 
         env = PourEnv(liquid=liquid)
     else:

@@ -15,7 +15,7 @@ from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, handle_act
 from pourbench.envs.core import PourBatch, PourConfig, default_solver_config
 from pourbench.envs.curriculum import Lesson, lesson_at, load_curriculum
 from pourbench.envs.observation import WeightFilter
-from pourbench.envs.pour import PourEnv
+from pourbench.envs.pour_v0 import PourEnv
 from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
 from pourbench.envs.vector import PourVectorEnv
 

@@ -1,6 +1,6 @@
 """The batched pouring task: one fluid solver, one MuJoCo model, ``num_worlds`` worlds.
 
-Both front-ends drive this class: :class:`~pourbench.envs.pour.PourEnv` is the batch of one,
+Both front-ends drive this class: :class:`~pourbench.envs.pour_v0.PourEnv` is the batch of one,
 :class:`~pourbench.envs.vector.PourVectorEnv` the batch of N. Each world has its own random
 generator (seeded per world on reset), liquid, pouring container, weight filter, noise key and
 episode counters, so world ``k`` of a batch follows the same episode as a batch of one given

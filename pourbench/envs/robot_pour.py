@@ -84,7 +84,7 @@ from pourbench.envs.curriculum import draw_liquid, load_curriculum
 from pourbench.envs.ft_sensor import gravity_compensate, vertical_load
 from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
 from pourbench.envs.options import ResetOptions, known_liquid
-from pourbench.envs.pour import RENDER_SIZE, action_space, check_settings, observation_space
+from pourbench.envs.pour_v0 import RENDER_SIZE, action_space, check_settings, observation_space
 from pourbench.envs.reward import ErrorHistory, extrinsic_reward
 from pourbench.errors import (
     InvalidParameterError,

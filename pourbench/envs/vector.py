@@ -6,7 +6,7 @@ groups (default: one per core, at most one per world); the first group is steppe
 process and each other one in a worker process (:mod:`pourbench.envs.workers`), each group
 by one :class:`~pourbench.envs.core.PourBatch` with one kernel launch per solver stage. World
 ``k`` reset with seed ``s + k`` follows the same episodes as a single
-:class:`~pourbench.envs.pour.PourEnv` reset with that seed, for any number of workers.
+:class:`~pourbench.envs.pour_v0.PourEnv` reset with that seed, for any number of workers.
 
 Autoreset: ``"next_step"`` (Gymnasium's default): a world whose episode ended is reset on the
 next ``step`` call, which then returns its first observation with reward 0 and ignores its
@@ -30,7 +30,7 @@ from gymnasium.vector.utils import batch_space
 from pourbench.envs.action_handler import as_actions
 from pourbench.envs.core import PourBatch, check_memory
 from pourbench.envs.options import ResetOptions
-from pourbench.envs.pour import action_space, make_config, observation_space
+from pourbench.envs.pour_v0 import action_space, make_config, observation_space
 from pourbench.envs.workers import (
     LocalGroup,
     RemoteGroup,

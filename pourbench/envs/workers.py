@@ -110,7 +110,7 @@ class WorldGroup:
         """One RGB image per world."""
         import mujoco
 
-        from pourbench.envs.pour import RENDER_SIZE, render_world
+        from pourbench.envs.pour_v0 import RENDER_SIZE, render_world
 
         if getattr(self, "_renderer", None) is None:
             self._renderer = mujoco.Renderer(self.batch.model, *RENDER_SIZE, max_geom=20000)

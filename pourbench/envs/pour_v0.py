@@ -1,6 +1,9 @@
 """``pourbench/Pour-v0``: PourNet's pouring task (thesis §6.4–6.6) as a Gymnasium env.
 
 The single environment is the batch of one of :class:`~pourbench.envs.core.PourBatch`.
+Each version of the task has its own module: a change to the task's observation, reward,
+action handler or defaults becomes ``Pour-v1`` beside this one, which keeps v0's behaviour
+(``tests/test_behaviour_fingerprint.py`` pins it).
 """
 
 from __future__ import annotations
