@@ -103,12 +103,6 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_train(args: argparse.Namespace) -> int:
-    from pourbench.agents.train import run
-
-    return run(args)
-
-
 def _print_table(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> None:
     """Columns left-aligned to their widest cell, under a header and a rule."""
     widths = [max(len(r[i]) for r in (header, *rows)) for i in range(len(header))]
@@ -236,16 +230,12 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--containers", default="training", choices=("training", "novel"))
     ev.set_defaults(func=_cmd_eval)
 
-    tr = sub.add_parser(
+    sub.add_parser(  # main() hands its flags to pourbench.agents.train (tyro)
         "train",
         help="train PourNet (PPO / RecurrentPPO / SAC, ICM, curriculum) on Pour-v0; "
-        "compare it with a random policy",
-        **defaults,
+        "compare it with a random policy (`pourbench train --help` lists its settings)",
+        add_help=False,
     )
-    from pourbench.agents.train import add_arguments as train_arguments
-
-    train_arguments(tr)
-    tr.set_defaults(func=_cmd_train)
 
     sweep = sub.add_parser(
         "sweep",
@@ -286,8 +276,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    words = list(sys.argv[1:] if argv is None else argv)
     try:
+        if words[:1] == ["train"]:
+            from pourbench.agents.train import main as train_main
+
+            return train_main(words[1:], prog="pourbench train")
+        args = build_parser().parse_args(words)
         return int(args.func(args) or 0)
     except PourbenchError as exc:  # bad input: one clear line, no traceback
         print(f"pourbench: error: {exc}", file=sys.stderr)

@@ -3,10 +3,9 @@ overwrites a model; trains, checkpoints, resumes (step counter and ICM carried o
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import pytest
 
@@ -60,20 +59,20 @@ def test_bad_input_is_one_clear_line(tmp_path, capsys, argv, words) -> None:
 def test_pourbench_train_takes_the_same_flags(tmp_path, capsys) -> None:
     from dataclasses import fields
 
-    from pourbench.agents.train import TrainArgs
-    from pourbench.cli import build_parser
+    from pourbench.agents.train import TrainArgs, parse_args
     from pourbench.cli import main as cli_main
 
     assert cli_main(["train", "--num-envs", "0", "--out", str(tmp_path / "run")]) == 2
-    assert "num_envs must be >= 1" in capsys.readouterr().err
+    assert "pourbench train: error: num_envs must be >= 1" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
-    parser = build_parser()
-    args = parser.parse_args(["train", "--budget-s", "30", "--resume"])
-    assert (args.budget_s, args.resume, args.num_envs) == (30.0, True, TrainArgs().num_envs)
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    helps = {a.dest: a.help for a in sub.choices["train"]._actions}
-    for f in fields(TrainArgs):  # every setting has its line of help
-        assert helps[f.name] and "default" not in helps[f.name], f.name
+    args = parse_args(["--budget-s", "30", "--resume", "--no-icm"], "pourbench train")
+    assert (args.budget_s, args.resume, args.icm, args.num_envs) == (30.0, True, False, 32)
+    with pytest.raises(SystemExit):
+        cli_main(["train", "--help"])
+    helps = " ".join(capsys.readouterr().out.split())
+    for f in fields(TrainArgs):  # every setting has its flag and its line of help
+        assert f"--{f.name.replace('_', '-')}" in helps, f.name
+    assert "training budget in wall-clock seconds over all sessions" in helps
 
 
 def test_an_output_path_that_is_a_file_is_refused(tmp_path, capsys) -> None:
@@ -227,7 +226,7 @@ def test_resuming_a_corrupt_model_names_the_file(tmp_path, capsys) -> None:
     assert main([*TINY, "--out", str(out), "--resume"]) == 2
     err = capsys.readouterr().err
     assert "state.json" in err and "missing or unreadable" in err
-    (out / "state.json").write_text(json.dumps({"args": vars(_args(TINY)), "timesteps": 0,
+    (out / "state.json").write_text(json.dumps({"args": asdict(_args(TINY)), "timesteps": 0,
                                                 "train_s": 0.0, "sessions": 1}))  # fmt: skip
     assert main([*TINY, "--out", str(out), "--resume"]) == 2
     err = capsys.readouterr().err
@@ -236,12 +235,10 @@ def test_resuming_a_corrupt_model_names_the_file(tmp_path, capsys) -> None:
     assert sorted(p.name for p in out.iterdir()) == ["model.zip", "state.json"]
 
 
-def _args(argv: list[str]) -> argparse.Namespace:
-    from pourbench.agents.train import add_arguments
+def _args(argv: list[str]):
+    from pourbench.agents.train import parse_args
 
-    parser = argparse.ArgumentParser()
-    add_arguments(parser)
-    return parser.parse_args(argv)
+    return parse_args(argv, "pourbench train")
 
 
 @pytest.mark.slow
@@ -313,13 +310,13 @@ def test_the_warm_start_demonstrates_every_lesson_and_leaves_the_first() -> None
 def test_a_run_from_before_a_setting_existed_resumes_with_its_default(tmp_path) -> None:
     """A state.json without ``rehearse`` (written before the setting existed) resumes a run
     that leaves it off, and is refused for one that turns it on."""
-    from pourbench.agents.train import TrainArgs, _read_state
+    from pourbench.agents.train import _read_state
 
     out = tmp_path / "run"
     out.mkdir()
     (out / "model.zip").write_bytes(b"")
-    args = TrainArgs(**vars(_args(TINY)))
-    saved = {k: v for k, v in vars(_args(TINY)).items() if k != "rehearse"}
+    args = _args(TINY)
+    saved = {k: v for k, v in asdict(args).items() if k != "rehearse"}
     (out / "state.json").write_text(json.dumps({"args": saved}))
     assert _read_state(out, args)["args"] == saved
     with pytest.raises(ValueError, match="has rehearse=False, not True"):

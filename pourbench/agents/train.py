@@ -25,15 +25,13 @@ model without ``--resume`` is refused rather than overwriting it.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import os
 import sys
 import time
-import typing
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -75,8 +73,8 @@ class TrainArgs:
         algorithm: ppo (with policy mlp: the FNN PourNet), recurrent_ppo (with policy lstm:
             the LSTM PourNet) or sac (mlp, one liquid, no ICM or curriculum).
         policy: mlp or lstm (see pourbench.agents.models for the architectures).
-        icm: add the curiosity module's intrinsic reward (PPO and RecurrentPPO);
-            --no-icm leaves it out.
+        icm: add the curiosity module's intrinsic reward (PPO and RecurrentPPO; off with
+            --no-icm).
         curriculum: draw liquids from the curriculum's lessons, switched at 25 % and 50 %
             of the budget; --no-curriculum pours --liquid in every episode.
         num_envs: parallel worlds in the one vector env (the thesis' 32).
@@ -660,59 +658,44 @@ def train(
     return result
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """One ``--flag`` per :class:`TrainArgs` field (``pourbench train`` and ``main`` share
-    it); ``--no-icm`` and ``--no-curriculum`` turn those off."""
-    helps = _field_help()
-    hints = typing.get_type_hints(TrainArgs)
-    for name, value in asdict(TrainArgs()).items():
-        flag = f"--{name.replace('_', '-')}"
-        if name in ("icm", "curriculum"):
-            parser.add_argument(f"--no-{name}", dest=name, action="store_false", help=helps[name])
-            parser.set_defaults(**{name: True})
-        elif isinstance(value, bool):
-            parser.add_argument(flag, action="store_true", help=helps[name])
-        else:
-            kinds = typing.get_args(hints[name]) or (hints[name],)
-            kind = next(t for t in kinds if t is not type(None))
-            if name == "budget_s":
-                value = None  # the 900 s default applies when no step budget is given either
-            # no argparse choices: TrainArgs refuses a bad name in one line naming it
-            parser.add_argument(flag, type=kind, default=value, help=helps[name])
+DESCRIPTION = (
+    "Train PourNet on Pour-v0 (PPO with an MLP, RecurrentPPO with an LSTM, or SAC on one "
+    "liquid; curiosity module and liquid curriculum on by default) and compare it with a "
+    "random policy."
+)
 
 
-def _field_help() -> dict[str, str]:
-    """Each field's line of :class:`TrainArgs`' ``Attributes:`` section."""
-    doc = (TrainArgs.__doc__ or "").split("Attributes:", 1)[-1]
-    helps: dict[str, str] = {}
-    for line in doc.splitlines():
-        name, sep, text = line.strip().partition(": ")
-        if sep and name in TrainArgs.__dataclass_fields__:
-            helps[name] = text.replace("``", "")
-        elif helps and line.strip():  # a wrapped description goes on
-            last = next(reversed(helps))
-            helps[last] += " " + line.strip()
-    return {k: v.rstrip(".").replace("%", "%%") for k, v in helps.items()}
+@dataclass
+class _Flags(TrainArgs):
+    """TrainArgs as tyro parses them: checked when :func:`parse_args` makes them TrainArgs,
+    so that a bad setting is refused in pourbench's one line."""
+
+    def __post_init__(self) -> None:
+        pass
 
 
-def run(args: argparse.Namespace, command: str | None = None) -> int:
-    """Train with the parsed flags and print the result JSON (``PourbenchError`` on bad input);
-    ``command``: see :func:`train`."""
-    fields = TrainArgs.__dataclass_fields__
-    result = train(TrainArgs(**{k: v for k, v in vars(args).items() if k in fields}), command)
+def parse_args(argv: Sequence[str] | None, prog: str) -> TrainArgs:
+    """:class:`TrainArgs` from command-line flags: one ``--flag`` per field, its help from the
+    field's line above, switches as ``--icm`` / ``--no-icm`` (tyro). A flag that does not
+    parse exits with tyro's message; a bad setting raises the :class:`PourbenchError` of
+    TrainArgs' checks."""
+    import tyro
+
+    flags = tyro.cli(_Flags, args=argv, prog=prog, description=DESCRIPTION)
+    return TrainArgs(**asdict(flags))
+
+
+def main(argv: Sequence[str] | None = None, prog: str = "python -m pourbench.agents.train") -> int:
+    """Train with the flags ``argv`` and print the result JSON; bad input is one line on
+    stderr and exit status 2, before any work."""
+    words = list(sys.argv[1:] if argv is None else argv)
+    try:
+        result = train(parse_args(words, prog), " ".join([prog, *words]))
+    except PourbenchError as exc:  # bad input: one clear line, no traceback
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
     print(json.dumps(result, indent=2))
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_arguments(parser)
-    try:
-        words = sys.argv[1:] if argv is None else argv
-        return run(parser.parse_args(argv), "python -m pourbench.agents.train " + " ".join(words))
-    except PourbenchError as exc:  # bad input: one clear line, no traceback
-        print(f"pourbench.agents.train: error: {exc}", file=sys.stderr)
-        return 2
 
 
 if __name__ == "__main__":
