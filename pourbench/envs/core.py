@@ -258,6 +258,32 @@ class PourConfig:
             _check_range(name, getattr(self, name), low)
 
 
+def thesis_observation(
+    liquid: np.ndarray,
+    diameter: np.ndarray,
+    depth: np.ndarray,
+    weight_g: np.ndarray,
+    target_g: np.ndarray,
+    average_error_g: np.ndarray,
+    tilt: np.ndarray,
+) -> np.ndarray:
+    """(n, 12) float32 observations in the thesis' order: the liquid's five features (n, 5),
+    the pouring container's diameter and depth (m), the filtered weight, the target and what
+    is left to pour (g), the average error of the earlier episodes (g) and the tilt (rad),
+    each (n,). NaN or infinite entries read 0; all are clipped to ±``OBS_BOUND``."""
+    obs = np.empty((len(weight_g), OBS_SIZE))
+    obs[:, :5] = liquid
+    obs[:, 5] = diameter
+    obs[:, 6] = depth
+    obs[:, 7] = weight_g
+    obs[:, 8] = target_g
+    obs[:, 9] = target_g - weight_g
+    obs[:, 10] = average_error_g
+    obs[:, 11] = tilt
+    obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
+    return np.clip(obs, -OBS_BOUND, OBS_BOUND).astype(np.float32)
+
+
 def _pouring_sets() -> dict[str, str]:
     """Every pouring container's name and its set."""
     return {n: s for s in CONTAINER_SETS for n in container_names(s)}
@@ -536,13 +562,7 @@ class PourBatch:
         self.was_reset[world] = True
         self.target_g[world] = target
         self.particle_g[world] = particle_g = particle_grams(liquid, self.solver_config.spacing)
-        self.liquid_obs[world] = [
-            liquid.density / 1000.0,
-            liquid.cohesion,
-            liquid.surface_tension,
-            viscosity_feature(liquid),
-            liquid.adhesion,
-        ]
+        self.liquid_obs[world] = liquid_features(liquid)
         self.liquid_names[world], self.container_names[world] = liquid.name, name
         self.noise_key[world] = rng.integers(0, 2**63, dtype=np.uint64)
         self.noise_count[world] = 0
@@ -709,18 +729,10 @@ class PourBatch:
     def observe(self, average_error_g: np.ndarray | None = None) -> np.ndarray:
         """(n, 12) float32 observations in the thesis' order (see ``PourEnv``)."""
         avg = self.history.average() if average_error_g is None else average_error_g
-        weight = self.filter.value_g
-        obs = np.empty((self.n, OBS_SIZE))
-        obs[:, :5] = self.liquid_obs
-        obs[:, 5] = self._diameter[self.cidx]
-        obs[:, 6] = self._depth[self.cidx]
-        obs[:, 7] = weight
-        obs[:, 8] = self.target_g
-        obs[:, 9] = self.target_g - weight
-        obs[:, 10] = avg
-        obs[:, 11] = self.tilt
-        obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
-        return np.clip(obs, -OBS_BOUND, OBS_BOUND).astype(np.float32)
+        return thesis_observation(
+            self.liquid_obs, self._diameter[self.cidx], self._depth[self.cidx],
+            self.filter.value_g, self.target_g, avg, self.tilt,
+        )  # fmt: skip
 
     def reset_info(self) -> dict[str, np.ndarray]:
         """Every world's info as a reset leaves it: its measurements (:meth:`measure`), no
@@ -904,3 +916,15 @@ def viscosity_feature(liquid: LiquidProfile) -> float:
     """The observation's viscosity: log10 of the dynamic viscosity in mPa·s (water 0, honey 4,
     ketchup 4.4), a scale on which the liquids a policy meets are evenly spread."""
     return math.log10(liquid.viscosity_pa_s * 1e3)
+
+
+def liquid_features(liquid: LiquidProfile) -> list[float]:
+    """The observation's five liquid values: density (g/ml), FleX's cohesion and surface
+    tension, :func:`viscosity_feature`, FleX's adhesion."""
+    return [
+        liquid.density / 1000.0,
+        liquid.cohesion,
+        liquid.surface_tension,
+        viscosity_feature(liquid),
+        liquid.adhesion,
+    ]

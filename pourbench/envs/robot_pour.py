@@ -69,16 +69,15 @@ from gymnasium.error import ResetNeeded
 from pourbench.containers import get_container
 from pourbench.envs.action_handler import as_actions, handle_actions
 from pourbench.envs.core import (
-    OBS_BOUND,
-    OBS_SIZE,
     PourConfig,
     default_solver_config,
     draw_amounts,
     liquid_account,
+    liquid_features,
     particle_grams,
     pouring_candidates,
     refuse_container,
-    viscosity_feature,
+    thesis_observation,
 )
 from pourbench.envs.curriculum import draw_liquid, load_curriculum
 from pourbench.envs.ft_sensor import gravity_compensate, vertical_load
@@ -447,10 +446,7 @@ class RobotPourEnv(gym.Env):
         self.substep_count = 0
         self.started = False
         self.upright_steps = 0
-        self.liquid_obs = np.array(
-            [[liquid.density / 1e3, liquid.cohesion, liquid.surface_tension,
-              viscosity_feature(liquid), liquid.adhesion]]
-        )  # fmt: skip
+        self.liquid_obs = np.array([liquid_features(liquid)])
         self.noise_key = rng.integers(0, 2**63, dtype=np.uint64)
         self.noise_count = 0
         # liquid
@@ -695,18 +691,10 @@ class RobotPourEnv(gym.Env):
         return out
 
     def _observe(self, avg: np.ndarray) -> np.ndarray:
-        weight = self.filter.value_g
-        obs = np.empty((1, OBS_SIZE))
-        obs[:, :5] = self.liquid_obs
-        obs[:, 5] = self.pour.diameter
-        obs[:, 6] = self.pour.depth
-        obs[:, 7] = weight
-        obs[:, 8] = self.target_g
-        obs[:, 9] = self.target_g - weight
-        obs[:, 10] = avg
-        obs[:, 11] = self.tilt  # the handler's tilt, as Pour-v0 observes it
-        obs = np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
-        return np.clip(obs, -OBS_BOUND, OBS_BOUND).astype(np.float32)[0]
+        return thesis_observation(
+            self.liquid_obs, self.pour.diameter, self.pour.depth, self.filter.value_g,
+            self.target_g, avg, self.tilt,  # the handler's tilt, as Pour-v0 observes it
+        )[0]  # fmt: skip
 
     def ee_target(self) -> tuple[np.ndarray, np.ndarray]:
         """The end-effector pose (rim centre, quaternion w x y z) the handler asked for last."""
