@@ -291,6 +291,22 @@ def test_bad_settings_and_resets_are_refused_before_anything_changes() -> None:
     assert env.step(np.zeros(2))[0].shape == (12,)
 
 
+def test_a_refused_reset_leaves_the_worlds_generator_as_it_was() -> None:
+    """A reset refused after its draws (liquid, container and amounts drawn, then a start off
+    the table) does not advance the world's generator: the next unseeded reset draws the
+    episode it would have drawn."""
+    episodes = []
+    for refuse in (False, True):
+        env = PourEnv()
+        env.reset(seed=3)
+        if refuse:
+            with pytest.raises(InvalidParameterError, match="off the table"):
+                env.reset(options={"start": (100.0, 0.0, 0.1)})
+        obs, info = env.reset()
+        episodes.append((obs.tolist(), info["target_g"], info["initial_g"]))
+    assert episodes[0] == episodes[1]
+
+
 def test_stepping_outside_an_episode_is_refused_and_changes_nothing() -> None:
     env = PourEnv(max_steps=2)
     with pytest.raises(ResetNeeded, match="before its first reset"):

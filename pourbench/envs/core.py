@@ -20,6 +20,7 @@ reward and observation are array operations over the worlds.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import time
@@ -503,11 +504,13 @@ class PourBatch:
         self, world: int, seed: int | None = None, options: Mapping | ResetOptions | None = None
     ) -> None:
         """Start a new episode in ``world`` (draws from its generator; reseeds it if given).
-        Every refusal comes before the world changes."""
+        Every refusal comes before the world changes, its generator included: the draws are
+        made on a copy that the world keeps only once the reset is accepted."""
         cfg = self.config
         opts = ResetOptions.parse(options)
         old = self.worlds[world]
-        rng = np.random.default_rng(seed) if (seed is not None or old is None) else old.rng
+        fresh = seed is not None or old is None
+        rng = np.random.default_rng(seed) if fresh else copy.deepcopy(old.rng)
         liquid = opts.liquid if opts.liquid is not None else self.default_liquid
         if liquid is None:
             liquid = draw_liquid(self.lessons, self.lesson, rng, cfg.rehearse)
@@ -529,8 +532,9 @@ class PourBatch:
                 ]
                 if not fits:
                     most = max(self.capacity_g(c, liquid.density) for c in self.candidates)
+                    group = cfg.container_set if cfg.container is None else repr(cfg.container)
                     raise CapacityError(
-                        f"{key}={asked:g} g is more than any {cfg.container_set} "
+                        f"{key}={asked:g} g is more than any {group} "
                         f"pouring container holds: the largest holds {0.85 * most:.0f} g of "
                         f"{liquid.name} at {liquid.density:.0f} kg/m^3 (85 % of its capacity)"
                     )

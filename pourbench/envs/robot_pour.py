@@ -58,6 +58,7 @@ rerun recording of the episode.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -398,12 +399,10 @@ class RobotPourEnv(gym.Env):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        super().reset(seed=seed)
-        cfg = self.config
-        if seed is not None or self.rng is None:
-            self.rng = np.random.default_rng(seed)
-        rng = self.rng
         opts = ResetOptions.parse(options)
+        cfg = self.config
+        fresh = seed is not None or self.rng is None
+        rng = np.random.default_rng(seed) if fresh else copy.deepcopy(self.rng)  # kept if accepted
         if opts.container not in (None, self.container):
             refuse_container(opts.container, (self.container,))
         liquid = opts.liquid if opts.liquid is not None else self.default_liquid
@@ -426,6 +425,8 @@ class RobotPourEnv(gym.Env):
                 f"start {start.tolist()} is out of the {self.robot}'s reach (IK error "
                 f"{err * 1e3:.1f} mm)"
             )
+        super().reset(seed=seed)
+        self.rng = rng
         d, m = self.data, self.model
         mujoco.mj_resetDataKeyframe(m, d, m.key("home").id)
         d.qpos[self.kin.qadr] = q

@@ -156,7 +156,8 @@ class PourVectorEnv(VectorEnv):
         Other ``options`` (liquid, target_g, container, initial_g, start) apply to every
         world reset.
         """
-        # everything is checked before the first world is reset
+        # seeds, mask and options are checked before any world is reset; what depends on a
+        # world's own draw (its liquid's capacity in a container) is refused by its group
         first: int | None = None
         if seed is None:
             seeds: list[int | None] = [None] * self.num_envs

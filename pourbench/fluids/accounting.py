@@ -14,6 +14,7 @@ tests put it.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 
 import numpy as np
@@ -22,6 +23,7 @@ import warp as wp
 from pourbench.fluids import kernels as K
 from pourbench.fluids.colliders import shape_kind
 from pourbench.fluids.solver import PBFSolver
+from pourbench.fluids.warp_setup import load_kernels
 from pourbench.geometry.rotation import warp_transforms
 from pourbench.geometry.shapes import ContainerShape
 
@@ -119,6 +121,7 @@ class LiquidCounter:
 
     def __init__(self, solver: PBFSolver, shapes: Sequence[ContainerShape], margin: float) -> None:
         self.solver, self.margin = solver, float(margin)
+        load_kernels([sys.modules[__name__]], solver.device)
         kinds = [shape_kind(s) for s in shapes]
         sizes = np.array([len(p) for _, p in kinds], np.int32)
         dev = solver.device
