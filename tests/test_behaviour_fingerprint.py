@@ -6,8 +6,8 @@ particle positions and velocities of a viscous two-cup pour (the implicit viscos
 
 The hashes hold for one CPU's floating-point path: Warp's LLVM code generation may contract or
 vectorise differently on another instruction set, so they are marked slow and kept out of CI.
-Run them before and after a refactor (``pytest -m slow tests/test_behaviour_fingerprint.py``,
-about 20 s). On a mismatch the test prints the new hashes; a change that means to alter
+Run them before and after a refactor (``pytest -m slow tests/test_behaviour_fingerprint.py``).
+On a mismatch the test prints the new hashes; a change that means to alter
 behaviour replaces the recorded ones in the same commit and says why.
 """
 
