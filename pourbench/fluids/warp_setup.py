@@ -54,9 +54,13 @@ def init_warp() -> None:
                 sys.stderr.flush()
 
 
+_LOADED: set[tuple[str, str]] = set()  # (module, device) pairs this process has loaded
+
+
 def load_kernels(modules: list[ModuleType], device: wp.context.Device) -> None:
     """Load ``modules``' kernels for ``device`` now; a line on stderr first when any of them
     is not in Warp's kernel cache and so compiles."""
+    modules = [m for m in modules if (m.__name__, str(device)) not in _LOADED]
     block_dim = 1 if device.is_cpu else None  # Warp launches CPU kernels with block_dim 1
     cache = wp.config.kernel_cache_dir
     missing = [
@@ -76,3 +80,4 @@ def load_kernels(modules: list[ModuleType], device: wp.context.Device) -> None:
         )
     for m in modules:
         wp.load_module(m, device=device, block_dim=block_dim)
+        _LOADED.add((m.__name__, str(device)))
