@@ -170,6 +170,34 @@ def test_a_refused_reset_in_the_workers_changes_nothing_and_the_env_goes_on() ->
     venv.close()
 
 
+def test_a_reset_one_world_refuses_resets_no_world_in_any_group() -> None:
+    """A refusal that depends on one world's own draw (a target more grams of its curriculum
+    liquid than any container holds) comes before any world is reset, in either group:
+    world 0, whose denser liquid was accepted, keeps its episode."""
+    from world_probes import largest_capacity_per_density, liquid_name, world_steps
+
+    from pourbench.envs.curriculum import draw_liquid, load_curriculum
+    from pourbench.errors import CapacityError
+
+    lessons = load_curriculum(None)
+    density = {s: draw_liquid(lessons, 0, np.random.default_rng(s)).density for s in range(40)}
+    light, heavy = min(density, key=density.get), max(density, key=density.get)
+    assert density[heavy] > density[light] * 1.1
+    venv = PourVectorEnv(2, workers=2)
+    venv.reset(seed=[5, 6])
+    venv.step(np.zeros((2, 2)))
+    before = [venv.call_world(k, liquid_name) for k in range(2)]
+    per_density = venv.call_world(0, largest_capacity_per_density)
+    target = 0.85 * per_density * (density[light] + density[heavy]) / 2
+    with pytest.raises(CapacityError, match="more than any training pouring container holds"):
+        venv.reset(seed=[heavy, light], options={"target_g": target})
+    assert [venv.call_world(k, world_steps) for k in range(2)] == [1, 1]
+    assert [venv.call_world(k, liquid_name) for k in range(2)] == before
+    obs, info = venv.reset(seed=[heavy, heavy], options={"target_g": target})
+    assert np.all(info["target_g"] == target) and np.all(np.isfinite(obs))
+    venv.close()
+
+
 def test_pourbench_errors_pickle_as_themselves() -> None:
     """A worker's error reaches the parent pickled: pourbench's errors keep type and text."""
     import pickle

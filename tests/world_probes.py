@@ -22,3 +22,13 @@ def world_steps(batch, world: int) -> int:
 def positions(batch, world: int) -> np.ndarray:
     """``world``'s particle positions."""
     return batch.solver.positions()[batch.solver.world_slice(world)]
+
+
+def largest_capacity_per_density(batch, world: int) -> float:
+    """Grams per kg/m³ of density that the largest of the batch's pouring containers holds."""
+    return max(batch.capacity_g(c, 1.0) for c in batch.candidates)
+
+
+def liquid_name(batch, world: int) -> str:
+    """The liquid of ``world``'s episode."""
+    return batch.worlds[world].liquid.name

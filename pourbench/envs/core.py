@@ -26,6 +26,7 @@ import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -319,6 +320,18 @@ def _check_range(name: str, value: object, minimum: float | None) -> None:
         raise InvalidParameterError(f"{name} must be (low, high) with low <= high, got {value!r}")
 
 
+class ResetDraw(NamedTuple):
+    """A world's checked reset, not yet applied (:meth:`PourBatch.draw_reset`): its generator
+    after the draws, liquid, pouring container, target and initial grams, base position (m)."""
+
+    rng: np.random.Generator
+    liquid: LiquidProfile
+    container: str
+    target_g: float
+    initial_g: float
+    base: np.ndarray
+
+
 @dataclass
 class WorldState:
     """Per-world episode draws (the counters of every world are arrays of :class:`PourBatch`)."""
@@ -503,9 +516,16 @@ class PourBatch:
     def reset_world(
         self, world: int, seed: int | None = None, options: Mapping | ResetOptions | None = None
     ) -> None:
-        """Start a new episode in ``world`` (draws from its generator; reseeds it if given).
-        Every refusal comes before the world changes, its generator included: the draws are
-        made on a copy that the world keeps only once the reset is accepted."""
+        """Start a new episode in ``world`` (draws from its generator; reseeds it if given);
+        a refusal leaves the world as it was (:meth:`draw_reset`)."""
+        self.apply_reset(world, self.draw_reset(world, seed, options))
+
+    def draw_reset(
+        self, world: int, seed: int | None = None, options: Mapping | ResetOptions | None = None
+    ) -> ResetDraw:
+        """Check and draw ``world``'s next episode without changing the world: the draws are
+        made on a copy of its generator, which :meth:`apply_reset` gives the world. So the
+        resets of several worlds can all be checked before any of them is applied."""
         cfg = self.config
         opts = ResetOptions.parse(options)
         old = self.worlds[world]
@@ -556,10 +576,14 @@ class PourBatch:
                 f"(|x|, |y| of the base within {TABLE_HALF_XY} m of the table's centre) or "
                 f"outside 0-{MAX_START_HEIGHT} m above the receiving container's base"
             )
-        # the world's state
+        return ResetDraw(rng, liquid, name, target, initial, base)
+
+    def apply_reset(self, world: int, draw: ResetDraw) -> None:
+        """Start ``world``'s episode as :meth:`draw_reset` drew it."""
+        rng, liquid, name, target = draw.rng, draw.liquid, draw.container, draw.target_g
         c = self.candidates.index(name)
         self.worlds[world] = WorldState(rng, liquid, name, target, 0.0)
-        self.base[world], self.tilt[world], self.max_tilt[world] = base, 0.0, 0.0
+        self.base[world], self.tilt[world], self.max_tilt[world] = draw.base, 0.0, 0.0
         self.rim_height[world], self.cidx[world] = self._rim[c], c
         self.steps[world] = self.substep_count[world] = self.upright_steps[world] = 0
         self.started[world] = self.done[world] = False
@@ -576,7 +600,7 @@ class PourBatch:
         self.solver.set_container_shape(self.pour_col[world], get_container(name).shape)
         self.solver.clear_world(world)
         self.solver.set_liquid(world, liquid)
-        n = self.solver.fill(world, self.pour_col[world], initial)
+        n = self.solver.fill(world, self.pour_col[world], draw.initial_g)
         self.initial_g[world] = self.worlds[world].initial_g = n * particle_g
         self.filter.reset(world, 0.0)  # the empty receiving container weighs 0 g
 

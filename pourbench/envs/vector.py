@@ -156,8 +156,8 @@ class PourVectorEnv(VectorEnv):
         Other ``options`` (liquid, target_g, container, initial_g, start) apply to every
         world reset.
         """
-        # seeds, mask and options are checked before any world is reset; what depends on a
-        # world's own draw (its liquid's capacity in a container) is refused by its group
+        # seeds, mask and options are checked here, and every world's draws (its liquid's
+        # capacity in a container) in its group, before any world is reset
         first: int | None = None
         if seed is None:
             seeds: list[int | None] = [None] * self.num_envs
@@ -182,9 +182,11 @@ class PourVectorEnv(VectorEnv):
             raise InvalidParameterError(
                 f"reset_mask leaves world {never[0]} unreset, and it was never reset"
             )
+        self._all(
+            "draw_resets", [seeds[sl] for sl in self._slices], self._split(mask), shared=(opts,)
+        )
         super().reset(seed=first)
-        seed_parts = [seeds[sl] for sl in self._slices]
-        answers = self._all("reset", seed_parts, self._split(mask), shared=(opts,))
+        answers = self._all("apply_resets")
         obs = np.concatenate([o for o, _ in answers])
         info = _concat([i for _, i in answers])
         self._was_reset |= mask

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from pourbench.envs.core import PourBatch, PourConfig
+from pourbench.envs.core import PourBatch, PourConfig, ResetDraw
 from pourbench.envs.options import ResetOptions
 
 _START_TIMEOUT_S = 600.0  # a worker that has not built its worlds by then is stopped
@@ -53,14 +53,23 @@ class WorldGroup:
 
     def __init__(self, num_worlds: int, config: PourConfig) -> None:
         self.batch = PourBatch(num_worlds, config)
+        self.drawn: list[tuple[int, ResetDraw]] = []
 
-    def reset(
-        self, seeds: list[int | None], mask: np.ndarray, options: ResetOptions
-    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """Reset the worlds in ``mask`` (seed ``seeds[k]``, the other ``options``); every
-        world's observation and info (:meth:`PourBatch.reset_info`)."""
-        for k in np.flatnonzero(mask):
-            self.batch.reset_world(int(k), seeds[k], options)
+    def draw_resets(self, seeds: list[int | None], mask: np.ndarray, options: ResetOptions) -> None:
+        """Check and draw the resets of the worlds in ``mask`` (seed ``seeds[k]``, the other
+        ``options``) without changing any world (:meth:`PourBatch.draw_reset`); a refusal
+        keeps none of them."""
+        self.drawn = []
+        self.drawn = [
+            (int(k), self.batch.draw_reset(int(k), seeds[k], options)) for k in np.flatnonzero(mask)
+        ]
+
+    def apply_resets(self) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Apply the resets :meth:`draw_resets` drew; every world's observation and info
+        (:meth:`PourBatch.reset_info`)."""
+        for k, draw in self.drawn:
+            self.batch.apply_reset(k, draw)
+        self.drawn = []
         self.batch.flush()
         return self.batch.observe(), self.batch.reset_info()
 
