@@ -21,8 +21,7 @@ def _headless_gl_default() -> None:
     ``render_mode="rgb_array"`` works on servers and in CI. Where neither is installed nothing
     is chosen: MuJoCo imports the backend it is told to at its own import, so a missing one
     would break ``import mujoco`` itself, not only rendering (rendering then fails with an
-    error naming ``MUJOCO_GL``). Nothing changes where a display exists, on other systems, or
-    once MuJoCo is already imported.
+    error naming ``MUJOCO_GL``).
     """
     if (
         sys.platform.startswith("linux")

@@ -1,6 +1,6 @@
 """pourbench: liquid-pouring benchmarks on MuJoCo and a Warp position-based-fluids solver.
 
-The ``pourbench`` console script. Subcommands import their modules lazily so
+The ``pourbench`` console script. Subcommands import their heavy modules lazily so
 ``pourbench --help`` stays fast. Each benchmark suite is a module ``pourbench.bench.<suite>``
 exposing ``run(args) -> int``; a suite with a CUDA path sets ``HAS_CUDA = True`` and reads
 ``args.device``.
@@ -19,27 +19,7 @@ from collections.abc import Sequence
 from pourbench.argtypes import nonnegative_int, policy_name, positive_float, positive_int
 from pourbench.errors import InvalidParameterError, PourbenchError
 
-BENCH_SUITES: tuple[str, ...] = (
-    "fluids",
-    "teleop",
-    "planning",
-    "env",
-    "transfer",
-    "pouring",
-    "ablation",
-)
-
-
-def _cmd_demo(args: argparse.Namespace) -> int:
-    from pourbench.demo import run_demo
-
-    return run_demo(args)
-
-
-def _cmd_sweep(args: argparse.Namespace) -> int:
-    from pourbench.agents.sweep import run
-
-    return run(args)
+BENCH_SUITES = ("fluids", "teleop", "planning", "env", "transfer", "pouring", "ablation")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -132,10 +112,8 @@ def _cmd_liquids(args: argparse.Namespace) -> int:
 def _cmd_containers(args: argparse.Namespace) -> int:
     from pourbench.containers import container_names, get_container
 
-    rows = []
-    for name in container_names():
-        c = get_container(name)
-        rows.append((c.name, c.role, c.kind, c.description))
+    shipped = [get_container(name) for name in container_names()]
+    rows = [(c.name, c.role, c.kind, c.description) for c in shipped]
     _print_table(("name", "set", "kind", "description"), rows)
     return 0
 
@@ -170,9 +148,10 @@ def build_parser() -> argparse.ArgumentParser:
         "demo", help="pour 200 g of water between two cups; write a recording", **defaults
     )
     from pourbench.demo import add_arguments as demo_arguments
+    from pourbench.demo import run_demo
 
     demo_arguments(demo)
-    demo.set_defaults(func=_cmd_demo)
+    demo.set_defaults(func=run_demo)
 
     bench = sub.add_parser(
         "bench", help="run a benchmark suite and write leaderboard/<suite>.*", **defaults
@@ -243,9 +222,10 @@ def build_parser() -> argparse.ArgumentParser:
         **defaults,
     )
     from pourbench.agents.sweep import add_arguments as sweep_arguments
+    from pourbench.agents.sweep import run as run_sweep
 
     sweep_arguments(sweep)
-    sweep.set_defaults(func=_cmd_sweep)
+    sweep.set_defaults(func=run_sweep)
 
     liquids = sub.add_parser("liquids", help="list the shipped liquid profiles")
     liquids.set_defaults(func=_cmd_liquids)

@@ -155,11 +155,13 @@ class Container:
         return np.array([r, 0.0, z]), quat
 
     def wall_pieces(self, max_error: float = DEFAULT_MAX_ERROR) -> list[np.ndarray]:
-        """Convex pieces whose union is the wall, each an (n, 3) vertex array in m.
+        """Convex pieces whose union is the wall, each an (n, 3) vertex array in m;
+        ``max_error`` bounds the distance between their surface and the SDF's zero level set, m.
 
-        Args:
-            max_error: bound on the distance between the pieces' surface and the SDF's zero
-                level set, m.
+        Raises:
+            InvalidParameterError: ``max_error`` not a finite number >= :data:`MIN_MAX_ERROR`, a
+                wall thinner than :data:`MIN_WALL`, or more pieces than :data:`MAX_WALL_PIECES`
+                (or vertices than :data:`MAX_WALL_VERTICES`).
         """
         return _wall_pieces(self.shape, max_error, f"container {self.name!r}")
 
@@ -193,15 +195,11 @@ def _stadium(a: np.ndarray, b: np.ndarray, h: float, steps: int) -> np.ndarray:
     return poly
 
 
-def _check_max_error(max_error: object) -> float:
-    return check_finite("max_error", max_error, minimum=MIN_MAX_ERROR)
-
-
 def _wall_plan(shape: ContainerShape, max_error: object, who: str) -> tuple[int, int]:
     """(sectors, arc steps) of ``shape``'s wall pieces, after checking ``max_error`` and that
     the pieces stay within :data:`MAX_WALL_PIECES`, :data:`MAX_ARC_STEPS` and
     :data:`MAX_WALL_VERTICES` (a finer mesh takes minutes; raise ``max_error`` instead)."""
-    max_error = _check_max_error(max_error)
+    max_error = check_finite("max_error", max_error, minimum=MIN_MAX_ERROR)
     wall = float(shape.wall)
     if not wall >= MIN_WALL:
         raise InvalidParameterError(f"{who}: wall {wall!r} m is thinner than {MIN_WALL} m")
@@ -226,17 +224,6 @@ def _wall_plan(shape: ContainerShape, max_error: object, who: str) -> tuple[int,
                 "raise max_error or shrink the container"
             )
     return sectors, arc_steps
-
-
-def wall_pieces(shape: ContainerShape, max_error: float = DEFAULT_MAX_ERROR) -> list[np.ndarray]:
-    """Convex pieces (each an (n, 3) vertex array, m) whose union is ``shape``'s wall.
-
-    Raises:
-        InvalidParameterError: ``max_error`` not a finite number >= :data:`MIN_MAX_ERROR`, a
-            wall thinner than :data:`MIN_WALL`, or more pieces than :data:`MAX_WALL_PIECES`
-            (or vertices than :data:`MAX_WALL_VERTICES`).
-    """
-    return _wall_pieces(shape, max_error, "container shape")
 
 
 def _wall_pieces(shape: ContainerShape, max_error: object, who: str) -> list[np.ndarray]:
@@ -417,18 +404,14 @@ def add_container_body(
         pos: body position in the parent frame, m.
         quat: body orientation in the parent frame (w, x, y, z).
         mocap: make it a mocap body (``parent`` must then be the world body).
-        max_error: mesh accuracy, m (see :func:`wall_pieces`).
-
-    Returns:
-        The new body.
+        max_error: mesh accuracy, m (see :meth:`Container.wall_pieces`).
 
     Raises:
         UnknownNameError: ``container`` names no shipped container.
         InvalidParameterError: anything else malformed: ``pos`` not 3 finite numbers, ``quat``
-            not a finite unit quaternion (within 1e-3, as :func:`~pourbench.errors.check_poses`
-            asks), ``max_error`` not finite or below :data:`MIN_MAX_ERROR`, a mesh over
-            :data:`MAX_WALL_PIECES` pieces, a name already in ``spec``, a mocap body under
-            another body than the world. Nothing is added to ``spec`` then.
+            not 4 of non-zero norm, a ``max_error`` or mesh that :meth:`Container.wall_pieces`
+            refuses, a name already in ``spec``, a mocap body under another body than the
+            world. Nothing is added to ``spec`` then.
     """
     if isinstance(container, str):
         c = get_container(container)
@@ -445,19 +428,15 @@ def add_container_body(
         raise InvalidParameterError(f"mocap body {name!r}: parent must be spec.worldbody")
     pos_arr = check_array("pos", pos, (3,))
     quat_arr = check_quat("quat", quat)  # MuJoCo normalises it
-    taken = [
-        n
-        for n, found in (
-            (name, spec.body(name)),
-            (f"{name}_wall_0", spec.mesh(f"{name}_wall_0")),
-            (f"{name}_wall_0", spec.geom(f"{name}_wall_0")),
-            (f"{name}_mount", spec.site(f"{name}_mount")),
-            (f"{name}_rim", spec.site(f"{name}_rim")),
-        )
-        if found is not None
-    ]
-    if taken:
-        raise InvalidParameterError(f"name {name!r}: {taken[0]!r} is already in the spec")
+    for taken, lookup in (
+        (name, spec.body),
+        (f"{name}_wall_0", spec.mesh),
+        (f"{name}_wall_0", spec.geom),
+        (f"{name}_mount", spec.site),
+        (f"{name}_rim", spec.site),
+    ):
+        if lookup(taken) is not None:
+            raise InvalidParameterError(f"name {name!r}: {taken!r} is already in the spec")
     pieces = _wall_pieces(c.shape, max_error, f"container {c.name!r}")
     volumes = np.array([ConvexHull(p).volume for p in pieces])
     body = parent.add_body(

@@ -35,9 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--target-g", type=positive_float, default=100.0, help="target of the policy's pour, g"
     )
     parser.add_argument(
-        "--scripted",
-        action="store_true",
-        help="the scripted tilt even when a PourNet policy ships",
+        "--scripted", action="store_true", help="the scripted tilt even when a PourNet policy ships"
     )
 
 

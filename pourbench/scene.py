@@ -23,11 +23,7 @@ from pourbench.containers import (
     container_names,
     get_container,
 )
-from pourbench.errors import (
-    InvalidParameterError,
-    UnknownNameError,
-    check_positive,
-)
+from pourbench.errors import InvalidParameterError, UnknownNameError, check_positive
 
 ROBOTS: tuple[str, ...] = ("movo", "panda")
 """Names accepted by :func:`load_robot` and :func:`robot_spec`."""
@@ -68,11 +64,8 @@ MOVO_TABLE_HEIGHT = 0.6
 
 STATIC_CONTYPE = 1
 """Contact bit of static geoms (floor, table, obstacles): robots and containers touch them."""
+_STATIC = {"contype": STATIC_CONTYPE, "conaffinity": 0}
 
-_GRIPPER = {  # robot -> (body holding the pouring container, its grasp site)
-    "movo": ("right_gripper", "right_ee"),
-    "panda": ("hand", "tcp"),
-}
 _PANDA_PEDESTAL = 0.2  # the Panda stands on a 0.2 m pedestal beside the table
 
 
@@ -110,19 +103,11 @@ class PourScene:
         return data
 
 
-def _site_matrix(model: mujoco.MjModel, data: mujoco.MjData, site: str) -> np.ndarray:
+def _frame(xmat: np.ndarray, xpos: np.ndarray) -> np.ndarray:
+    """The 4 x 4 homogeneous transform of a rotation matrix (9 values) and a position."""
     h = np.eye(4)
-    h[:3, :3] = data.site_xmat[model.site(site).id].reshape(3, 3)
-    h[:3, 3] = data.site_xpos[model.site(site).id]
-    return h
-
-
-def _pose_matrix(pos: np.ndarray, quat: np.ndarray) -> np.ndarray:
-    h = np.eye(4)
-    rot = np.zeros(9)
-    mujoco.mju_quat2Mat(rot, np.asarray(quat, dtype=float))
-    h[:3, :3] = rot.reshape(3, 3)
-    h[:3, 3] = pos
+    h[:3, :3] = xmat.reshape(3, 3)
+    h[:3, 3] = xpos
     return h
 
 
@@ -138,13 +123,13 @@ def _grasp_in_body(
     """Pose, in ``body``'s frame, that puts the container's mount site on ``site``."""
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
-    b = model.body(body).id
-    body_h = np.eye(4)
-    body_h[:3, :3] = data.xmat[b].reshape(3, 3)
-    body_h[:3, 3] = data.xpos[b]
-    site_in_body = np.linalg.inv(body_h) @ _site_matrix(model, data, site)
-    mount = _pose_matrix(*container.mount_pose())
-    return _pos_quat(site_in_body @ np.linalg.inv(mount))
+    b, s = model.body(body).id, model.site(site).id
+    site_h = _frame(data.site_xmat[s], data.site_xpos[s])
+    site_in_body = np.linalg.inv(_frame(data.xmat[b], data.xpos[b])) @ site_h
+    mount_pos, mount_quat = container.mount_pose()
+    mount_rot = np.zeros(9)
+    mujoco.mju_quat2Mat(mount_rot, mount_quat)
+    return _pos_quat(site_in_body @ np.linalg.inv(_frame(mount_rot, mount_pos)))
 
 
 def _add_environment(
@@ -162,8 +147,7 @@ def _add_environment(
         type=mujoco.mjtGeom.mjGEOM_PLANE,
         size=[5.0, 5.0, 0.1],
         rgba=[0.82, 0.82, 0.8, 1.0],
-        contype=STATIC_CONTYPE,
-        conaffinity=0,
+        **_STATIC,
     )
     table = world.add_body(name="table", pos=[table_center[0], table_center[1], 0.0])
     table.add_geom(
@@ -172,8 +156,7 @@ def _add_environment(
         pos=[0.0, 0.0, height - 0.02],
         size=[size[0], size[1], 0.02],
         rgba=[0.6, 0.45, 0.3, 1.0],
-        contype=STATIC_CONTYPE,
-        conaffinity=0,
+        **_STATIC,
     )
     for sx in (-1, 1):
         for sy in (-1, 1):
@@ -182,27 +165,21 @@ def _add_environment(
                 pos=[sx * (size[0] - 0.04), sy * (size[1] - 0.04), (height - 0.04) / 2],
                 size=[0.025, 0.025, (height - 0.04) / 2],
                 rgba=[0.45, 0.33, 0.22, 1.0],
-                contype=STATIC_CONTYPE,
-                conaffinity=0,
+                **_STATIC,
             )
     world.add_camera(name="overview", pos=[1.9, -1.1, 1.7], xyaxes=[0.5, 0.87, 0, -0.4, 0.23, 0.89])
 
 
 def _add_scale(spec: mujoco.MjSpec, body: mujoco.MjsBody) -> tuple[str, str]:
+    """A force and a torque sensor at a ``scale`` site of ``body``; their names."""
     body.add_site(name="scale", size=[0.01] * 3)
-    force = spec.add_sensor(
-        name="scale_force",
-        type=mujoco.mjtSensor.mjSENS_FORCE,
-        objtype=mujoco.mjtObj.mjOBJ_SITE,
-        objname="scale",
-    )
-    torque = spec.add_sensor(
-        name="scale_torque",
-        type=mujoco.mjtSensor.mjSENS_TORQUE,
-        objtype=mujoco.mjtObj.mjOBJ_SITE,
-        objname="scale",
-    )
-    return force.name, torque.name
+    sensors = {
+        "scale_force": mujoco.mjtSensor.mjSENS_FORCE,
+        "scale_torque": mujoco.mjtSensor.mjSENS_TORQUE,
+    }
+    for name, kind in sensors.items():
+        spec.add_sensor(name=name, type=kind, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="scale")
+    return "scale_force", "scale_torque"
 
 
 def _robot_at_table(robot: str) -> mujoco.MjSpec:
@@ -218,8 +195,7 @@ def _robot_at_table(robot: str) -> mujoco.MjSpec:
         pos=[0.0, 0.0, _PANDA_PEDESTAL / 2],
         size=[0.12, 0.12, _PANDA_PEDESTAL / 2],
         rgba=[0.3, 0.3, 0.32, 1.0],
-        contype=STATIC_CONTYPE,
-        conaffinity=0,
+        **_STATIC,
     )
     _add_environment(spec, (0.65, 0.0), (0.3, 0.5))
     return spec
@@ -287,14 +263,14 @@ def build_pour_scene(
     spec = _robot_at_table(robot)
     spec.modelname = f"{robot}_pour_{pouring}_{receiving}"
     bare = robot_spec(robot).compile()  # grasp offsets are relative to gripper bodies
-    if robot == "movo":
+    if robot == "movo":  # (body name, container, the gripper body holding it, its grasp site)
         held = (
-            ("pouring", pour, *_GRIPPER["movo"]),
+            ("pouring", pour, "right_gripper", "right_ee"),
             ("receiving", recv, "left_gripper", "left_ee"),
         )
         scale = ("left_ft_force", "left_ft_torque")
     else:
-        held = (("pouring", pour, *_GRIPPER["panda"]),)
+        held = (("pouring", pour, "hand", "tcp"),)
         home = mujoco.MjData(bare)
         mujoco.mj_resetDataKeyframe(bare, home, bare.key("home").id)
         mujoco.mj_kinematics(bare, home)

@@ -11,7 +11,8 @@ import pytest
 from sb3_contrib import RecurrentPPO
 from stable_baselines3 import PPO
 
-from pourbench.agents.evaluate import evaluate, load_sb3_policy, make_policy
+from pourbench.agents.evaluate import evaluate, load_sb3_policy
+from pourbench.agents.loading import load_policy
 from pourbench.agents.sb3 import SB3PourVecEnv
 from pourbench.cli import main
 
@@ -103,8 +104,8 @@ def _still(obs: np.ndarray, new: bool) -> np.ndarray:
         (lambda: evaluate(_still, 1, seed=None), "seed must be an integer, got None"),
         (lambda: evaluate(_still, 1, seed=-1), "seed must be >= 0, got -1"),
         (lambda: evaluate(_still, 1, liquidd="water"), "unknown environment setting 'liquidd'"),
-        (lambda: make_policy("random", float("nan")), "seed must be an integer, got nan"),
-        (lambda: make_policy("random", -1), "seed must be >= 0"),
+        (lambda: load_policy("random", float("nan")), "seed must be an integer, got nan"),
+        (lambda: load_policy("random", -1), "seed must be >= 0"),
     ],
 )
 def test_bad_evaluation_settings_are_refused_before_any_episode(call, words) -> None:

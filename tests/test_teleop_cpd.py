@@ -8,7 +8,6 @@ import pytest
 from pourbench.errors import InvalidParameterError
 from pourbench.teleop import (
     gauss_transform,
-    register_affine,
     register_nonrigid,
     register_rigid,
 )
@@ -45,14 +44,14 @@ def test_rigid_recovers_rotation_translation_scale_with_10pct_outliers(dim: int)
     np.testing.assert_allclose(res.transform(Y), res.points, atol=1e-12)
 
 
-def test_rigid_and_affine_transforms_refuse_other_points() -> None:
+def test_rigid_transform_refuses_other_points() -> None:
     rng = np.random.default_rng(3)
     Y = rng.uniform(-0.3, 0.3, size=(40, 2))
-    for res in (register_rigid(Y + 0.1, Y), register_affine(Y + 0.1, Y)):
-        with pytest.raises(InvalidParameterError, match="pts has 3 dims, expected 2"):
-            res.transform(np.zeros((4, 3)))
-        with pytest.raises(InvalidParameterError, match="pts contains NaN"):
-            res.transform(np.full((4, 2), np.nan))
+    res = register_rigid(Y + 0.1, Y)
+    with pytest.raises(InvalidParameterError, match="pts has 3 dims, expected 2"):
+        res.transform(np.zeros((4, 3)))
+    with pytest.raises(InvalidParameterError, match="pts contains NaN"):
+        res.transform(np.full((4, 2), np.nan))
 
 
 def test_rigid_without_scale_keeps_unit_scale() -> None:
@@ -64,17 +63,6 @@ def test_rigid_without_scale_keeps_unit_scale() -> None:
     assert np.max(np.abs(res.R - _rot2(-0.4))) < 1e-3
 
 
-def test_affine_recovers_known_map_with_outliers() -> None:
-    rng = np.random.default_rng(9)
-    Y = rng.uniform(-0.3, 0.3, size=(150, 2))
-    B = np.array([[1.2, 0.3], [-0.2, 0.8]])
-    t = np.array([0.07, -0.04])
-    X = _with_outliers(Y @ B.T + t, 0.10, rng)
-    res = register_affine(X, Y, w=0.1)
-    assert np.max(np.abs(res.B - B)) < 1e-3
-    assert np.max(np.abs(res.t - t)) < 1e-3
-
-
 def _disk_and_deformation() -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(3)
     r = np.sqrt(rng.uniform(0, 1, 150)) * 0.2
@@ -84,7 +72,7 @@ def _disk_and_deformation() -> tuple[np.ndarray, np.ndarray]:
     return X, Y
 
 
-def test_nonrigid_recovers_smooth_deformation_that_rigid_and_affine_cannot() -> None:
+def test_nonrigid_recovers_smooth_deformation_that_rigid_cannot() -> None:
     X, Y = _disk_and_deformation()  # deformation up to 4.2 cm
     exact = register_nonrigid(X, Y, beta=3.0, lmbda=3.0)
     assert np.max(np.linalg.norm(exact.points - X, axis=1)) < 1e-4
@@ -93,9 +81,8 @@ def test_nonrigid_recovers_smooth_deformation_that_rigid_and_affine_cannot() -> 
     assert np.max(np.linalg.norm(low.points - X, axis=1)) < 1e-3
     fgt = register_nonrigid(X, Y, fgt=True)
     assert np.max(np.linalg.norm(fgt.points - exact.points, axis=1)) < 1e-4
-    # a similarity or affine map cannot explain this deformation
+    # a similarity cannot explain this deformation
     assert np.max(np.linalg.norm(register_rigid(X, Y).points - X, axis=1)) > 0.01
-    assert np.max(np.linalg.norm(register_affine(X, Y).points - X, axis=1)) > 0.01
 
 
 def test_nonrigid_field_transform_matches_points_and_moves_new_points_coherently() -> None:
@@ -127,7 +114,7 @@ def test_gauss_transform_declines_when_direct_is_cheaper() -> None:
     assert gauss_transform(S, S, np.ones((50, 1)), 0.01) is None
 
 
-@pytest.mark.parametrize("fn", [register_rigid, register_affine, register_nonrigid])
+@pytest.mark.parametrize("fn", [register_rigid, register_nonrigid])
 def test_malformed_input_raises_value_error(fn) -> None:
     Y = np.zeros((10, 2)) + np.arange(10)[:, None] * 0.01
     with pytest.raises(ValueError, match="X"):
@@ -150,10 +137,7 @@ _PTS = np.array([[0.0, 0.0], [1.0, 0.2], [0.3, 1.0], [0.8, 0.9], [0.1, 0.5]])
     [
         (lambda: register_rigid(_PTS, np.ones((5, 2))), "Y is degenerate"),
         (lambda: register_rigid(np.zeros((1, 2)), np.zeros((1, 2))), "X is degenerate"),
-        (lambda: register_affine(np.ones((5, 2)), np.ones((5, 2))), "X is degenerate"),
         (lambda: register_nonrigid(np.ones((5, 2)), np.ones((5, 2))), "X is degenerate"),
-        (lambda: register_affine(_PTS, _PTS[:1]), "Y must span all 2 dimensions"),
-        (lambda: register_affine(_PTS, np.c_[np.arange(5.0), np.zeros(5)]), "rank 1"),
         (lambda: register_rigid(_PTS, _PTS, max_iter=2.5), "max_iter must be an integer"),
         (lambda: register_rigid(_PTS, _PTS, tol=np.nan), "tol must be finite"),
         (lambda: register_rigid(np.zeros((5, 0)), np.zeros((3, 0))), "X has no dimensions"),

@@ -59,10 +59,7 @@ class BudgetCallback(BaseCallback):
     and calls ``checkpoint()`` every ``checkpoint_s`` seconds."""
 
     def __init__(
-        self,
-        budget_s: float | None,
-        checkpoint_s: float,
-        checkpoint: Callable[[], None],
+        self, budget_s: float | None, checkpoint_s: float, checkpoint: Callable[[], None]
     ) -> None:
         super().__init__()
         self.budget_s, self.checkpoint_s, self.checkpoint = budget_s, checkpoint_s, checkpoint

@@ -15,13 +15,11 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from pourbench.agents.loading import Policy, load_policy, load_sb3_policy
-from pourbench.argtypes import BUILTIN_POLICIES
+from pourbench.agents.loading import load_policy, load_sb3_policy
 from pourbench.envs.pour_v0 import PourEnv, check_settings
 from pourbench.errors import check_int
 
-POLICIES = BUILTIN_POLICIES
-__all__ = ["POLICIES", "EvalResult", "evaluate", "load_sb3_policy", "make_policy", "pour_episode"]
+__all__ = ["EvalResult", "evaluate", "load_sb3_policy", "pour_episode"]
 
 
 TABLE_6_2 = ("water", "ink", "oil", "glycerine", "honey", "ketchup")
@@ -79,11 +77,6 @@ def pour_episode(
     return info, steps
 
 
-def make_policy(name: str, seed: int = 0) -> Policy:
-    """A policy by name or path: :func:`~pourbench.agents.loading.load_policy`."""
-    return load_policy(name, seed)
-
-
 def evaluate(
     policy: str | Callable[[np.ndarray, bool], np.ndarray],
     episodes: int = 10,
@@ -112,7 +105,7 @@ def evaluate(
     episodes = check_int("episodes", episodes, minimum=1)
     seed = check_int("seed", seed, minimum=0)
     check_settings(env_kwargs, also=("render_mode", "record_path"))
-    act = policy if callable(policy) else make_policy(policy, seed)  # type: ignore[arg-type]
+    act = policy if callable(policy) else load_policy(policy, seed)
     env = PourEnv(**env_kwargs)
     errors, spills, success, steps = [], [], [], []
     options = {} if target_g is None else {"target_g": float(target_g)}

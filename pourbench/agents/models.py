@@ -70,7 +70,6 @@ def make_model(
     learning_rate: float = 3e-4,
     target_kl: float | None = None,
     sde: bool = False,
-    tensorboard_log: str | None = None,
     verbose: int = 1,
 ) -> Any:
     """A new model of ``algorithm`` ("ppo": FNN, "recurrent_ppo": LSTM, "sac") on ``env``.
@@ -87,7 +86,6 @@ def make_model(
             divergence from the rollout's passes this (None: no limit, SB3's default).
         sde: generalized state-dependent exploration (SB3's ``use_sde``), its noise drawn
             once per rollout.
-        tensorboard_log: TensorBoard folder (None: none, or the logger set later).
         verbose: SB3's verbosity.
 
     Raises:
@@ -99,52 +97,28 @@ def make_model(
         "seed": seed,
         "device": "cpu",
         "verbose": verbose,
-        "tensorboard_log": tensorboard_log,
         "gamma": GAMMA,
         "learning_rate": learning_rate,
         "use_sde": sde,
     }
-    rollout = n_steps * env.num_envs
-    if algorithm == "ppo":
-        return PPO(
-            "MlpPolicy",
-            env,
-            n_steps=n_steps,
-            batch_size=min(batch_size, rollout),
-            target_kl=target_kl,
-            policy_kwargs={
-                "net_arch": {"pi": list(HIDDEN), "vf": list(HIDDEN)},
-                "features_extractor_class": ScaledObservation,
-            },
-            **common,
-        )
-    if algorithm == "recurrent_ppo":
+    extractor = {"features_extractor_class": ScaledObservation}
+    if algorithm in ("ppo", "recurrent_ppo"):
+        common.update(n_steps=n_steps, batch_size=min(batch_size, n_steps * env.num_envs))
+        arch = {"net_arch": {"pi": list(HIDDEN), "vf": list(HIDDEN)}, **extractor}
+        if algorithm == "ppo":
+            return PPO("MlpPolicy", env, target_kl=target_kl, policy_kwargs=arch, **common)
         from sb3_contrib import RecurrentPPO
 
-        return RecurrentPPO(
-            "MlpLstmPolicy",
-            env,
-            n_steps=n_steps,
-            batch_size=min(batch_size, rollout),
-            target_kl=target_kl,
-            policy_kwargs={
-                "lstm_hidden_size": LSTM_UNITS,
-                "n_lstm_layers": 1,
-                "net_arch": {"pi": list(HIDDEN), "vf": list(HIDDEN)},
-                "features_extractor_class": ScaledObservation,
-            },
-            **common,
-        )
+        lstm = {"lstm_hidden_size": LSTM_UNITS, "n_lstm_layers": 1, **arch}
+        return RecurrentPPO("MlpLstmPolicy", env, target_kl=target_kl, policy_kwargs=lstm, **common)
     if algorithm == "sac":
+        arch = {"net_arch": list(HIDDEN), **extractor}
         return SAC(
             "MlpPolicy",
             env,
             batch_size=batch_size,
             buffer_size=200_000,
-            policy_kwargs={
-                "net_arch": list(HIDDEN),
-                "features_extractor_class": ScaledObservation,
-            },
+            policy_kwargs=arch,
             **common,
         )
     raise InvalidParameterError(

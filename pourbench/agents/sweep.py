@@ -310,9 +310,7 @@ def run_sweep(config: str | Path, out: str | Path = "runs/sweeps", address: str 
         grid = tuner.fit()
     finally:
         if started:
-            import ray
-
-            ray.shutdown()
+            import_ray().shutdown()
     rows, curves = trial_rows(grid, sweep)
     plot = plot_curves(curves, folder / "sweep.png", f"sweep {sweep.name}")
     columns = ["trial", *sweep.search, "timesteps", "final_error_g", "best_error_g",

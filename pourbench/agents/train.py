@@ -214,17 +214,15 @@ class TrainArgs:
             self.budget_s = 900.0
         if self.budget_s is not None:
             check_positive("budget_s", self.budget_s)
-        for name in ("checkpoint_s", "icm_eta"):
+        for name in ("checkpoint_s", "icm_eta", "learning_rate"):
             check_positive(name, getattr(self, name))
         for name in ("num_envs", "n_steps", "seq_len", "batch_size", "eval_episodes", "threads"):
             check_int(name, getattr(self, name), minimum=1)
         for name in ("seed", "workers", "eval_every_steps", "warm_start_steps", "dagger_rounds"):
             check_int(name, getattr(self, name), minimum=0)
         check_int("clone_epochs", self.clone_epochs, minimum=1)
-        check_positive("learning_rate", self.learning_rate)
-        check_finite("target_kl", self.target_kl, minimum=0.0)
-        check_finite("clone_std", self.clone_std, minimum=0.0)
-        check_finite("final_error_per_g", self.final_error_per_g, minimum=0.0)
+        for name in ("target_kl", "clone_std", "final_error_per_g"):
+            check_finite(name, getattr(self, name), minimum=0.0)
         if self.algorithm == "sac" and self.target_kl:
             raise InvalidParameterError(
                 f"target_kl={self.target_kl!r} limits PPO's updates; SAC has none"
@@ -285,15 +283,10 @@ class TrainArgs:
             )
         if self.algorithm == "recurrent_ppo" and self.seq_len != self.n_steps:
             longer = self.seq_len > self.n_steps
+            cut = "" if longer else ", which sb3-contrib cannot cut"
             raise InvalidParameterError(
-                f"seq_len={self.seq_len!r} is "
-                + (
-                    f"longer than the rollout, n_steps={self.n_steps!r}"
-                    if longer
-                    else f"shorter than the rollout, n_steps={self.n_steps!r}, which "
-                    "sb3-contrib cannot cut"
-                )
-                + "; set n_steps to the LSTM sequence length"
+                f"seq_len={self.seq_len!r} is {'longer' if longer else 'shorter'} than the "
+                f"rollout, n_steps={self.n_steps!r}{cut}; set n_steps to the LSTM sequence length"
             )
         if not isinstance(self.liquid, str) or not self.liquid:
             raise InvalidParameterError(f"liquid must be a liquid name, got {self.liquid!r}")
@@ -320,17 +313,6 @@ def _save(model: Any, path: Path) -> None:
     partial = path.with_name(path.stem + ".partial.zip")
     model.save(partial)
     os.replace(partial, path)
-
-
-def _provenance(command: str | None) -> dict[str, str]:
-    """Command line (``command``, else this process's), git SHA, machine and date of this
-    session (``state.json``'s history)."""
-    from pourbench.provenance import provenance
-
-    stamp = provenance()
-    if command is not None:
-        stamp["command"] = command
-    return stamp
 
 
 def _read_state(out: Path, args: TrainArgs) -> dict[str, Any]:
@@ -482,6 +464,7 @@ def train(
     from pourbench.agents.sb3 import SB3PourVecEnv
     from pourbench.agents.schedule import CurriculumCallback
     from pourbench.envs.curriculum import lesson_at, load_curriculum
+    from pourbench.provenance import provenance
 
     torch.set_num_threads(args.threads)
     env_kw: dict[str, Any] = {"liquid": None if args.curriculum else args.liquid}
@@ -567,7 +550,9 @@ def train(
         def spent_s() -> float:
             return state["train_s"] + time.perf_counter() - t_start
 
-        stamp = _provenance(command)
+        stamp = provenance()  # this session's, for state.json's history
+        if command is not None:
+            stamp["command"] = command
 
         def checkpoint() -> None:
             _save(model, model_path)

@@ -3,14 +3,12 @@
 The thesis trains PourNet from scratch on Algorithm 5's sparse reward, which a CPU budget of a
 few hours may not reach. ``pourbench train --warm-start-steps N`` first rolls the PD baseline
 (:mod:`pourbench.agents.pd`) in the training's own vector env for ``N`` environment steps
-(:func:`demonstrate`), then fits the new model to them (:func:`clone`): the policy's mean
-action to the PD's by least squares and its value network to the demonstrations' discounted
-returns, so that PPO's first advantages are not those of an untrained critic; then the
-policy's state-independent standard deviation is set to its maximum-likelihood value, the
-mean's residual per action dimension (at least ``min_std``), so that PPO explores around the
-cloned actions with the spread the fit leaves rather than the untrained network's unit
-deviation (gradient steps alone move a log deviation by about the learning rate per step).
-Training then goes on as without it.
+(:func:`demonstrate`), then fits the new model to them (:func:`clone`): the mean action to
+the PD's and the value network to the discounted returns, so that PPO's first advantages are
+not those of an untrained critic, and the spread to what the fit leaves, so that PPO explores
+around the cloned actions rather than with the untrained network's unit deviation (gradient
+steps alone move a log deviation by about the learning rate per step). Training then goes on
+as without it.
 
 Written by hand: the ``imitation`` library's behaviour cloning covers SB3's feed-forward
 policies but not sb3-contrib's recurrent ones. Here both go through the policy's own
@@ -30,9 +28,8 @@ import numpy as np
 from pourbench.errors import check_int
 
 EPISODES_PER_BATCH = 4
-"""Episodes in one gradient step of a recurrent policy's fit. Whole 500-step rollouts, 8
-worlds a step, left an LSTM's 30 epochs over 16 worlds at 60 steps, too few to fit the PD
-(`docs/training.md`); episodes, 4 a step, give the same data about 8 times the steps."""
+"""Episodes in one gradient step of a recurrent policy's fit: about 8 times the steps of
+whole rollouts, 8 worlds a step, which were too few to fit the PD (`docs/training.md`)."""
 
 
 @dataclass(frozen=True)

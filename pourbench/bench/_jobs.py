@@ -87,6 +87,12 @@ def _ray_results(fn: Callable[..., dict], todo: list[Job], address: str) -> Iter
             ray.shutdown()
 
 
+def flag_counts(episodes: list[dict], flags: tuple[str, ...]) -> str:
+    """How many ``episodes`` ended on each of ``flags``, e.g. "collided 2" ("" when none did)."""
+    counts = {k: sum(e[k] for e in episodes) for k in flags}
+    return ", ".join(f"{k} {v}" for k, v in counts.items() if v)
+
+
 def _call(fn: Callable[..., dict], job: Job) -> tuple[Job, dict]:
     return job, fn(*job)
 

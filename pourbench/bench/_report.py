@@ -17,8 +17,7 @@ from typing import Any
 import numpy as np
 
 from pourbench.errors import InvalidParameterError
-from pourbench.provenance import git_sha as git_sha  # re-exported (moved there)
-from pourbench.provenance import machine as machine
+from pourbench.provenance import git_sha as git_sha  # re-exported for the suites
 from pourbench.provenance import provenance
 
 
@@ -49,8 +48,11 @@ def accelerator(rows: Sequence[dict[str, Any]]) -> str | None:
     return f"{dev.name} (sm_{dev.arch}), Warp {wp.config.version}"
 
 
-def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str]) -> str:
-    """A GitHub markdown table of ``rows`` restricted to ``columns``."""
+def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str] | None = None) -> str:
+    """A GitHub markdown table of ``rows`` restricted to ``columns`` (None: the first row's
+    keys, in their order)."""
+    if columns is None:
+        columns = list(rows[0]) if rows else []
 
     def fmt(v: Any) -> str:
         if isinstance(v, float):

@@ -38,15 +38,6 @@ BUDGET_STEPS = 200_000
 EVAL_LIQUID = "water"
 QUICK = {"budget_steps": 256, "num_envs": 2, "n_steps": 32, "batch_size": 64}
 RUNS = Path("runs") / "ablation"
-COLUMNS = [
-    "variant",
-    "steps",
-    "train_h",
-    "final_eval_error_g",
-    "best_eval_error_g",
-    "final_training_error_g",
-    "random_eval_error_g",
-]
 
 
 def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
@@ -171,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
             "`random_eval_error_g`: a random policy on the same episodes. "
             "Each run's sessions (command, git SHA, machine) are in its `state.json`.",
             "",
-            markdown_table(rows, COLUMNS),
+            markdown_table(rows),
             "",
             "![ablation](ablation.png)" if not args.no_write else "",
         ]
@@ -190,5 +181,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"suite": "ablation", "rows": rows}))
     else:
-        print(markdown_table(rows, COLUMNS))
+        print(markdown_table(rows))
     return 0

@@ -25,21 +25,8 @@ from typing import Any
 import numpy as np
 
 from pourbench.bench._report import devices, markdown_table, report_stem, write_report
-from pourbench.bench.env_robot import ROBOT_CASES, ROBOT_COLUMNS, robot_case
+from pourbench.bench.env_robot import ROBOT_CASES, robot_case
 
-COLUMNS = (
-    "front_end",
-    "device",
-    "worlds",
-    "workers",
-    "particles",
-    "g_per_particle",
-    "env_steps_per_s",
-    "s_per_vector_step",
-    "host_share",
-    "baseline_env_steps_per_s",
-    "speedup_vs_baseline",
-)
 TARGET_SINGLE_CPU = 200.0
 TARGET_VECTOR_CPU = 400.0  # 64 worlds on 2 workers
 HAS_CUDA = True
@@ -208,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
             "with the case (until it has had its own time budget); `speedup_vs_baseline` = "
             "its time a step / the case's.",
             "",
-            markdown_table(rows, COLUMNS),
+            markdown_table(rows),
             "",
             f"Targets: ≥ {TARGET_SINGLE_CPU:g} steps/s for one CPU env, ≥ "
             f"{TARGET_VECTOR_CPU:g} for 64 worlds on 2 CPU workers.",
@@ -222,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
             if robot_rows
             else "",
             "",
-            markdown_table(robot_rows, ROBOT_COLUMNS) if robot_rows else "",
+            markdown_table(robot_rows) if robot_rows else "",
         ]
     )
     if not args.no_write:
@@ -237,5 +224,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"suite": "env", "rows": rows, "robot": robot_rows}))
     else:
-        print(markdown_table(rows, COLUMNS))
+        print(markdown_table(rows))
     return 0

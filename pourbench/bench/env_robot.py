@@ -18,16 +18,6 @@ import numpy as np
 
 ROBOT_CASES = (("movo", "nmpc"), ("movo", "mink"), ("panda", "nmpc"), ("panda", "mink"))
 
-ROBOT_COLUMNS = (
-    "robot",
-    "planner",
-    "env_steps_per_s",
-    "planner_ms_per_step",
-    "pour_v0_env_steps_per_s",
-    "ratio_to_pour_v0",
-    "particles",
-)
-
 
 def robot_case(
     robot: str, planner: str, budget_s: float = 5.0, min_steps: int = 3

@@ -23,9 +23,6 @@ import warp as wp
 from pourbench.bench._report import devices, markdown_table, report_stem, write_report
 from pourbench.bench.fluids_baseline import BaselinePBF
 from pourbench.bench.fluids_viscosity import (
-    BALL_COLUMNS,
-    COST_COLUMNS,
-    SETTLING_COLUMNS,
     falling_ball_check,
     settling_check,
     timed_pour,
@@ -159,17 +156,6 @@ COLUMNS = [
     "baseline_particle_steps_per_s",
     "speedup_vs_baseline",
     "neighbours_mean",
-]
-
-
-HOLD_COLUMNS = [
-    "scene",
-    "settings",
-    "ms_per_step_fixed",
-    "ms_per_step",
-    "cost_ratio",
-    "iterations_mean",
-    "iterations_max",
 ]
 
 
@@ -374,7 +360,7 @@ def run(args: argparse.Namespace) -> int:
             if hold
             else "",
             "",
-            markdown_table(hold, HOLD_COLUMNS) if hold else "",
+            markdown_table(hold) if hold else "",
             "",
             f"## Cost of the physical viscosity ({checks_device})" if visc_cost else "",
             "",
@@ -385,7 +371,7 @@ def run(args: argparse.Namespace) -> int:
             if visc_cost
             else "",
             "",
-            markdown_table(visc_cost, COST_COLUMNS) if visc_cost else "",
+            markdown_table(visc_cost) if visc_cost else "",
             "",
             f"## Physical checks ({checks_device})" if checks_md else "",
             "",
@@ -395,13 +381,13 @@ def run(args: argparse.Namespace) -> int:
             "",
             ball_note,
             "",
-            markdown_table(ball, BALL_COLUMNS) if ball else "",
+            markdown_table(ball) if ball else "",
             "",
             f"## Settling against the closed form ({checks_device})" if settling else "",
             "",
             settling_note,
             "",
-            markdown_table(settling, SETTLING_COLUMNS) if settling else "",
+            markdown_table(settling) if settling else "",
         ]
     )
     if not args.no_write:

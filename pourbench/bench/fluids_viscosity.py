@@ -35,36 +35,6 @@ MARBLE_ORDER = (
 )
 """Table 3.4's liquids, fastest marble first."""
 
-SETTLING_COLUMNS = [
-    "viscosity_pa_s",
-    "speeds_m_s",
-    "terminal_m_s",
-    "closed_form_m_s",
-    "terminal_over_closed_form",
-    "reynolds",
-    "within_30_percent",
-]
-
-COST_COLUMNS = [
-    "scene",
-    "ms_per_step_flex",
-    "ms_per_step",
-    "cost_ratio",
-    "viscosity_iterations_mean",
-    "viscosity_iterations_max",
-]
-
-BALL_COLUMNS = [
-    "liquid",
-    "viscosity_pa_s",
-    "thesis_marble_m_s",
-    "speeds_m_s",
-    "terminal_m_s",
-    "closed_form_m_s",
-    "terminal_over_closed_form",
-    "reynolds",
-]
-
 
 def timed_pour(
     liquid: Any, config: SolverConfig, seconds: float

@@ -65,6 +65,7 @@ MAX_STEPS = 200  # per goal (40 s)
 TIME_BUDGET = 0.08  # NMPC-MP stops iterating after this much time in a call (s), for 10 Hz
 
 ONLINE = ("NMPC-MP (BFGS)", "NMPC-MP (GN)", "mink")
+HESSIANS = {"NMPC-MP (BFGS)": "bfgs", "NMPC-MP (GN)": "gauss_newton"}  # NMPC-MP's, by planner
 OFFLINE = ("STOMP", "CHOMP", "RRT", "RRT-Connect", "PRM*")
 
 # Thesis numbers (Movo, Tables 4.3–4.5): normalised length, time (s), joint speed (rad/s),
@@ -134,17 +135,8 @@ def make_tasks(robot: str, quick: bool = False) -> list[Task]:
     if quick:
         t3.q0 = q0
         return [t3]
-    jogs, p = [], p0.copy()
-    for d in [
-        (0.03, 0, 0),
-        (0, -0.03, 0),
-        (0, 0, 0.03),
-        (-0.03, 0, 0),
-        (0, 0.03, 0),
-        (0, 0, -0.03),
-    ]:
-        p = p + np.array(d)
-        jogs.append((p.copy(), x0))
+    moves = 0.03 * np.array([[1, 0, 0], [0, -1, 0], [0, 0, 1], [-1, 0, 0], [0, 1, 0], [0, 0, -1]])
+    jogs = [(p, x0) for p in np.cumsum([p0, *moves], axis=0)[1:]]  # one after the other
     t1 = Task("i", robot, arm, jogs, none, SAFETY, ONLINE, ph=1, ch=1, pos_tol=JOG_POS_TOL)
     far = [
         ((0.0, -0.3, 0.2), (0, 0, 0.3)),
@@ -297,12 +289,8 @@ def _run_online(task: Task, planner_name: str) -> dict:
     if task.dual is not None:
         return _run_dual(task, planner_name)
     arm = _setup_arm(task.arm, task.obstacles(0.0), include_other=task.robot == "movo")
-    make = {
-        "NMPC-MP (BFGS)": lambda: _nmpc(arm, task, "bfgs"),
-        "NMPC-MP (GN)": lambda: _nmpc(arm, task, "gauss_newton"),
-        "mink": lambda: _mink(arm, task),
-    }[planner_name]
-    planner = make()
+    hess = HESSIANS.get(planner_name)
+    planner = _nmpc(arm, task, hess) if hess else _mink(arm, task)
     q = task.q0.copy()
     segs = []
     t_now = 0.0
@@ -337,7 +325,7 @@ def _run_dual(task: Task, planner_name: str) -> dict:
     names = (task.arm, task.dual[0])
     goals = (task.goals[0], task.dual[1][0])
     arms = [_setup_arm(n, [], include_other=True) for n in names]
-    hess = {"NMPC-MP (BFGS)": "bfgs", "NMPC-MP (GN)": "gauss_newton"}.get(planner_name)
+    hess = HESSIANS.get(planner_name)
     planners = [_nmpc(a, task, hess) if hess else _mink(a, task) for a in arms]
     qs = [[a.kin.home()] for a in arms]
     times: list[list[float]] = [[], []]
@@ -407,17 +395,15 @@ def _run_offline(task: Task, planner_name: str, prm_time: float) -> dict:
         q_goal, ok = ik.solve_ik(q, goal[0], goal[1])
         if not ok:
             plan_ok, path, t_plan = False, np.array([q]), 0.0
-        elif planner_name == "STOMP":
-            r = plan_stomp(arm.kin, all_obs, q, q_goal, safety_distance=task.safety)
-            plan_ok, path, t_plan = r.success, r.path, r.planning_time_s
-        elif planner_name == "CHOMP":
-            r = plan_chomp(arm.kin, all_obs, q, q_goal, safety_distance=task.safety)
-            plan_ok, path, t_plan = r.success, r.path, r.planning_time_s
         else:
-            key = {"RRT": "rrt", "RRT-Connect": "rrtconnect", "PRM*": "prmstar"}[planner_name]
-            limit = prm_time if key == "prmstar" else 10.0
-            r = plan_ompl(arm.world, arm.kin, q, q_goal, key, safety_distance=task.safety,
-                          time_limit=limit)  # fmt: skip
+            if planner_name in ("STOMP", "CHOMP"):
+                plan = plan_stomp if planner_name == "STOMP" else plan_chomp
+                r = plan(arm.kin, all_obs, q, q_goal, safety_distance=task.safety)
+            else:
+                key = {"RRT": "rrt", "RRT-Connect": "rrtconnect", "PRM*": "prmstar"}[planner_name]
+                limit = prm_time if key == "prmstar" else 10.0
+                r = plan_ompl(arm.world, arm.kin, q, q_goal, key, safety_distance=task.safety,
+                              time_limit=limit)  # fmt: skip
             plan_ok, path, t_plan = r.success, r.path, r.planning_time_s
         dense, clear, speed = _execute_offline(arm, path)
         success = plan_ok and ok

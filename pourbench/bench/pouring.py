@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from pourbench.argtypes import shipped_policies
-from pourbench.bench._jobs import run_jobs
+from pourbench.bench._jobs import flag_counts, run_jobs
 from pourbench.bench._report import git_sha, markdown_table, write_report
 
 HAS_RAY = True
@@ -199,12 +199,6 @@ def _mean(results: dict[Pour, dict], jobs: list[Pour], key: str = "error_g") -> 
     return float(np.mean([results[j][key] for j in jobs]))
 
 
-def _flags(eps: list[dict]) -> str:
-    """The episodes that ended on a flag, by flag ("" when none did)."""
-    counts = {k: sum(e[k] for e in eps) for k in ("collided", "sim_diverged")}
-    return ", ".join(f"{k} {v}" for k, v in counts.items() if v)
-
-
 def liquid_table(
     results: dict[Pour, dict],
     names: tuple[str, ...],
@@ -226,7 +220,7 @@ def liquid_table(
                 jobs = [(p, liquid, None, target, s) for s in range(pours)]
                 row[f"{p}_g"] = _mean(results, jobs)
                 row[f"{p}_success"] = _mean(results, jobs, "success")
-                if f := _flags([results[j] for j in jobs]):
+                if f := flag_counts([results[j] for j in jobs], ("collided", "sim_diverged")):
                     flags.append(f"{p}: {f}")
             row["flags"] = "; ".join(flags)
             rows.append(row)
@@ -255,11 +249,8 @@ def container_table(
 
 
 def _averages(rows: list[dict[str, Any]], columns: list[str]) -> str:
-    parts = []
-    for c in columns:
-        values = [r[c] for r in rows if r[c] is not None]
-        parts.append(f"{c} {np.mean(values):.2f}")
-    return ", ".join(parts)
+    means = [np.mean([r[c] for r in rows if r[c] is not None]) for c in columns]
+    return ", ".join(f"{c} {m:.2f}" for c, m in zip(columns, means, strict=True))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -60,7 +60,7 @@ import os
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -162,7 +162,15 @@ class Job:
     var: Variation
     cls: str
     lib: SkillLibrary
-    make: Callable[[], np.ndarray]
+
+    def operator(self) -> np.ndarray:
+        """The operator's (untransformed) trajectory."""
+        if self.op == "skill replay":
+            duration = LETTER_DURATION_S if self.task == "2d" else FEEDING_DURATION_S
+            return _skill_replay(self.lib.skill(self.label).trajectory, duration)
+        if self.task == "2d":
+            return letter_demos(self.label, 1, seed=SEED, start=10 + self.rep)[0].points
+        return feeding_demos(self.label, 1, seed=SEED, start=5 + self.rep)[0].points
 
 
 # Calibration of the invariant recognition (our addition): one held-out demonstration per
@@ -193,18 +201,6 @@ def _skill_replay(traj: np.ndarray, duration: float) -> np.ndarray:
     return np.stack([np.interp(u, s, traj[:, d]) for d in range(traj.shape[1])], axis=1)
 
 
-def _operator(
-    op: str, task: str, label: str, rep: int, lib: SkillLibrary
-) -> Callable[[], np.ndarray]:
-    """A function producing the operator's (untransformed) trajectory for one run."""
-    if op == "skill replay":
-        duration = LETTER_DURATION_S if task == "2d" else FEEDING_DURATION_S
-        return lambda: _skill_replay(lib.skill(label).trajectory, duration)
-    if task == "2d":
-        return lambda: letter_demos(label, 1, seed=SEED, start=10 + rep)[0].points
-    return lambda: feeding_demos(label, 1, seed=SEED, start=5 + rep)[0].points
-
-
 def _max_step(traj: np.ndarray, delta_d: float) -> float:
     pts = delta_sample(traj, delta_d)
     if pts.shape[0] < 2:
@@ -213,10 +209,7 @@ def _max_step(traj: np.ndarray, delta_d: float) -> float:
 
 
 def _run_one(
-    lib: SkillLibrary,
-    human: np.ndarray,
-    outage_net: NetworkModel,
-    cfg: SkillCPDConfig,
+    lib: SkillLibrary, human: np.ndarray, outage_net: NetworkModel, cfg: SkillCPDConfig
 ) -> dict[str, Any]:
     """Replay one operator trajectory through the arbitration; return metrics and traces."""
     sa = SkillCPD(lib, cfg)
@@ -460,9 +453,7 @@ def run(args: argparse.Namespace) -> int:
         for rep in range(reps if op == "held-out demo" else 1):
             for L in LETTERS:
                 for var in variations:
-                    make = _operator(op, "2d", L, rep, lib2)
-                    jobs.append(Job(op, "2d", L, rep, var, var.cls, lib2, make))
-    lib3 = None
+                    jobs.append(Job(op, "2d", L, rep, var, var.cls, lib2))
     if not quick:
         print("teleop: learning 3 feeding skills (5 demos each)", file=log)
         lib3 = SkillLibrary(0.01).fit(
@@ -479,8 +470,7 @@ def run(args: argparse.Namespace) -> int:
             for rep in range(3 if op == "held-out demo" else 1):
                 for T in FEEDING_TARGETS:
                     for var in VARIATIONS_3D:
-                        make = _operator(op, "3d", T, rep, lib3)
-                        jobs.append(Job(op, "3d", T, rep, var, var.cls, lib3, make))
+                        jobs.append(Job(op, "3d", T, rep, var, var.cls, lib3))
     # the open-set classes: a library without UNKNOWN_LETTERS (after the rows above, so
     # their outages are drawn as before)
     known = [L for L in LETTERS if L not in UNKNOWN_LETTERS]
@@ -494,17 +484,15 @@ def run(args: argparse.Namespace) -> int:
         cls = OPEN_SET_CLASSES[L in UNKNOWN_LETTERS]
         for rep in range(reps if L in UNKNOWN_LETTERS else 1):
             for var in variations:
-                make = _operator(op, "2d", L, rep, lib21)
-                jobs.append(Job(op, "2d", L, rep, var, cls, lib21, make))
+                jobs.append(Job(op, "2d", L, rep, var, cls, lib21))
     rows: list[dict[str, Any]] = []
     timing_cases: list[tuple[np.ndarray, np.ndarray]] = []
     switch_cases: list[tuple[np.ndarray, np.ndarray, SkillCPDConfig]] = []
     for job in tqdm(jobs, desc="teleop runs", file=log):
         op, task, label, rep, var, lib = job.op, job.task, job.label, job.rep, job.var, job.lib
         delta_d = 0.006 if task == "2d" else 0.01
-        raw = job.make()
-        centre = 0.5 * (raw.min(axis=0) + raw.max(axis=0))
-        human = var.apply(raw, centre)
+        raw = job.operator()
+        human = var.apply(raw, _centre(raw))
         outage = task_outage(rng, human.shape[0] * DT_S)
         net = NetworkModel([outage], DT_S)
         human_step = 100.0 * _max_step(human, delta_d)

@@ -25,7 +25,7 @@ import numpy as np
 
 from pourbench.agents.loading import load_policy
 from pourbench.argtypes import shipped_policies
-from pourbench.bench._jobs import run_jobs
+from pourbench.bench._jobs import flag_counts, run_jobs
 from pourbench.bench._report import git_sha, markdown_table, write_report
 
 LIQUIDS = ("water", "milk", "cola", "orange juice", "rapeseed oil", "dish soap", "honey")
@@ -51,22 +51,10 @@ THESIS_TABLE_6_4 = {
 
 ENVS = ("pour", "movo", "panda")
 """Pour-v0, then PourRobot-v0 with each robot."""
+FLAGS = ("collided", "planner_failed", "sim_diverged")
 
 SHIPPED = "pournet-lstm"
 LOG = Path("runs") / "transfer" / "episodes.jsonl"
-
-COLUMNS = [
-    "liquid",
-    "target_g",
-    "thesis_movo_g",
-    "pour_v0_g",
-    "movo_g",
-    "gap_movo_g",
-    "panda_g",
-    "gap_panda_g",
-    "movo_flags",
-    "panda_flags",
-]
 
 
 def policy_name() -> str:
@@ -125,12 +113,6 @@ def run_episodes(
     return {job[1:]: result for job, result in results.items()}
 
 
-def _flags(eps: list[dict]) -> str:
-    """The episodes that ended on a flag, by flag ("" when none did)."""
-    counts = {k: sum(e[k] for e in eps) for k in ("collided", "planner_failed", "sim_diverged")}
-    return ", ".join(f"{k} {v}" for k, v in counts.items() if v)
-
-
 def table(
     results: dict[tuple[str, str, float, int], dict],
     liquids: tuple[str, ...],
@@ -155,8 +137,8 @@ def table(
                     "gap_movo_g": err["movo"] - err["pour"],
                     "panda_g": err["panda"],
                     "gap_panda_g": err["panda"] - err["pour"],
-                    "movo_flags": _flags(eps["movo"]),
-                    "panda_flags": _flags(eps["panda"]),
+                    "movo_flags": flag_counts(eps["movo"], FLAGS),
+                    "panda_flags": flag_counts(eps["panda"], FLAGS),
                 }
             )
     return rows
@@ -193,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
             "transfer gap); `*_flags`: episodes ended by a collision, a planner that missed "
             "its target, or a diverged liquid.",
             "",
-            markdown_table(rows, COLUMNS),
+            markdown_table(rows),
             "",
             "Mean over the table: " + ", ".join(f"{c} {v:.2f} g" for c, v in means.items()) + ".",
         ]
@@ -211,5 +193,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"suite": "transfer", "policy": policy, "rows": rows}))
     else:
-        print(markdown_table(rows, COLUMNS))
+        print(markdown_table(rows))
     return 0

@@ -216,10 +216,7 @@ class PourConfig:
         if self.container_set not in CONTAINER_SETS:
             raise UnknownNameError("container_set", self.container_set, CONTAINER_SETS)
         if self.container is not None and self.container not in _pouring_sets():
-            sets = _pouring_sets()
-            raise UnknownNameError(
-                "pouring container", self.container, [f"{n} ({sets[n]})" for n in sets]
-            )
+            refuse_container(self.container, ())
         if self.liquid is not None:
             known_liquid(self.liquid)
         if not isinstance(self.rehearse, bool):
@@ -234,12 +231,7 @@ class PourConfig:
             )
         for name in ("tolerance_g", "stream_stop_g", "settle_time", "sensor_noise_n"):
             check_finite(name, getattr(self, name), minimum=0.0)
-        if isinstance(self.max_steps, bool) or not isinstance(self.max_steps, int | np.integer):
-            raise InvalidParameterError(f"max_steps must be an integer, got {self.max_steps!r}")
-        if self.max_steps < 1:
-            raise InvalidParameterError(
-                f"max_steps must be an integer >= 1, got {self.max_steps!r}"
-            )
+        check_int("max_steps", self.max_steps, minimum=1)
         if self.upright_tilt >= self.pour_tilt:
             raise InvalidParameterError(
                 f"upright_tilt ({self.upright_tilt!r} rad) must be below pour_tilt "

@@ -204,7 +204,8 @@ class PourEnv(gym.Env):
         with self._viewer.lock():
             scene = self._viewer.user_scn
             scene.ngeom = 0
-            add_particles(scene, self.batch, 0)
+            x = self.batch.solver.positions()
+            add_particles(scene, x, self.batch.solver_config.spacing)
         self._viewer.sync()
 
     def discard_recording(self) -> None:
@@ -234,37 +235,48 @@ def _world_info(info: dict[str, np.ndarray], w: int) -> dict[str, Any]:
 
 
 def render_world(batch: PourBatch, world: int, renderer: mujoco.Renderer) -> np.ndarray:
-    """RGB image (H, W, 3) of one world: MuJoCo's containers (translucent) plus the particles
-    as spheres, seen from the side of the pour."""
+    """RGB image (H, W, 3) of one world (:func:`render_scene`), seen from the side of the
+    pour."""
     cam = mujoco.MjvCamera()
     cam.lookat[:] = [-0.05, 0.0, 0.85]
     cam.distance, cam.azimuth, cam.elevation = 0.75, 90.0, -20.0
+    x = batch.solver.positions()[batch.solver.world_slice(world)]
+    return render_scene(renderer, batch.world_data(world), cam, x, batch.solver_config.spacing)
+
+
+def render_scene(
+    renderer: mujoco.Renderer,
+    data: mujoco.MjData,
+    camera: mujoco.MjvCamera,
+    particles: np.ndarray,
+    spacing: float,
+    hidden_groups: Sequence[int] = (),
+) -> np.ndarray:
+    """RGB image (H, W, 3) of ``data``'s scene from ``camera``: no sites, no geoms of
+    ``hidden_groups``, the containers (the only meshes) translucent, and the finite
+    ``particles`` (k, 3; m) as spheres of diameter ``spacing``."""
     opt = mujoco.MjvOption()
     opt.sitegroup[:] = 0
-    renderer.update_scene(batch.world_data(world), camera=cam, scene_option=opt)
+    for g in hidden_groups:
+        opt.geomgroup[g] = 0
+    renderer.update_scene(data, camera=camera, scene_option=opt)
     scene = renderer.scene
-    for g in scene.geoms[: scene.ngeom]:  # see-through containers (the only meshes)
+    for g in scene.geoms[: scene.ngeom]:
         if g.type == mujoco.mjtGeom.mjGEOM_MESH:
             g.rgba[3] = 0.35
-    add_particles(scene, batch, world)
+    add_particles(scene, particles, spacing)
     return renderer.render()
 
 
-def add_particles(scene: mujoco.MjvScene, batch: PourBatch, world: int) -> None:
-    """Append one world's particles to ``scene`` as spheres, as many as it has room for."""
-    x = batch.solver.positions()[batch.solver.world_slice(world)]
-    r = 0.5 * batch.solver_config.spacing
+def add_particles(scene: mujoco.MjvScene, particles: np.ndarray, spacing: float) -> None:
+    """Append the finite ``particles`` (k, 3; m) to ``scene`` as spheres of diameter
+    ``spacing``, as many as it has room for."""
+    size = np.array([0.5 * spacing, 0.0, 0.0])
     eye = np.eye(3).ravel()
     rgba = np.array([0.2, 0.45, 0.9, 1.0], np.float32)
-    for p in x[np.isfinite(x).all(1)][: scene.maxgeom - scene.ngeom]:
-        mujoco.mjv_initGeom(
-            scene.geoms[scene.ngeom],
-            mujoco.mjtGeom.mjGEOM_SPHERE,
-            np.array([r, 0.0, 0.0]),
-            p.astype(float),
-            eye,
-            rgba,
-        )
+    for p in particles[np.isfinite(particles).all(1)][: scene.maxgeom - scene.ngeom]:
+        sphere = mujoco.mjtGeom.mjGEOM_SPHERE
+        mujoco.mjv_initGeom(scene.geoms[scene.ngeom], sphere, size, p.astype(float), eye, rgba)
         scene.ngeom += 1
 
 

@@ -45,13 +45,9 @@ and with ``info["planner_failed"]`` when the end-effector is further than ``max_
 / ``max_rot_error`` from the step's target after the step (``info["planner_qp_failed"]``
 reports a QP that failed inside a call, which then returns its last iterate).
 
-Batching: this first version runs one world (``num_envs=1``). The task's per-world state
-(handler state, filter, history, accounting, observation) is kept in ``(1, …)`` arrays and
-goes through Pour-v0's batched functions (handler, filter, reward, liquid accounting), so a
-batch only needs the rigid step to be batched too. What is *not* batched yet: the planner
-call (one NMPC/mink solve per world), the MuJoCo substeps (``mj_step`` on one ``MjData``) and
-the coupling's per-world pose sync; a vector env would need a batched MuJoCo path (MuJoCo
-Warp, or a threaded rollout) and one planner per world. There is no vector env.
+One world: the task's state is kept in ``(1, …)`` arrays and goes through Pour-v0's batched
+functions (handler, filter, reward, liquid accounting); the planner call, the MuJoCo substeps
+and the coupling's pose sync are per world, and there is no vector env.
 ``render_mode="rgb_array"`` draws the robot, containers and liquid; ``record_path`` writes a
 rerun recording of the episode.
 """
@@ -84,13 +80,20 @@ from pourbench.envs.curriculum import draw_liquid, load_curriculum
 from pourbench.envs.ft_sensor import gravity_compensate, vertical_load
 from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
 from pourbench.envs.options import ResetOptions, known_liquid
-from pourbench.envs.pour_v0 import RENDER_SIZE, action_space, check_settings, observation_space
+from pourbench.envs.pour_v0 import (
+    RENDER_SIZE,
+    action_space,
+    check_settings,
+    observation_space,
+    render_scene,
+)
 from pourbench.envs.reward import ErrorHistory, extrinsic_reward
 from pourbench.errors import (
     InvalidParameterError,
     UnknownNameError,
     check_finite,
     check_index,
+    check_int,
     check_positive,
 )
 from pourbench.fluids import MujocoCoupling, PBFSolver
@@ -156,10 +159,7 @@ class RobotSettings:
         check_finite("safety_distance", self.safety_distance, minimum=0.0)
         check_positive("max_pos_error", self.max_pos_error)
         check_positive("max_rot_error", self.max_rot_error)
-        if not isinstance(self.nmpc_max_iter, int) or self.nmpc_max_iter < 1:
-            raise InvalidParameterError(
-                f"nmpc_max_iter must be an integer >= 1, got {self.nmpc_max_iter!r}"
-            )
+        check_int("nmpc_max_iter", self.nmpc_max_iter, minimum=1)
 
 
 def _add_cup_capsule(spec: mujoco.MjSpec, cup: object) -> None:
@@ -608,26 +608,9 @@ class RobotPourEnv(gym.Env):
         cam = mujoco.MjvCamera()
         cam.lookat[:] = self.origin + np.array([0.0, -0.1, 0.1])
         cam.distance, cam.azimuth, cam.elevation = 1.3, 200.0, -25.0
-        opt = mujoco.MjvOption()
-        opt.sitegroup[:] = 0
-        opt.geomgroup[3] = 0  # the planner's capsules
-        r = self._renderer
-        r.update_scene(self.data, camera=cam, scene_option=opt)
-        scene = r.scene
-        for g in scene.geoms[: scene.ngeom]:  # see-through containers (the only meshes)
-            if g.type == mujoco.mjtGeom.mjGEOM_MESH:
-                g.rgba[3] = 0.35
-        x = self.solver.positions()
-        rad = np.array([0.5 * self.solver_config.spacing, 0.0, 0.0])
-        eye = np.eye(3).ravel()
-        rgba = np.array([0.2, 0.45, 0.9, 1.0], np.float32)
-        for p in x[np.isfinite(x).all(1)][: scene.maxgeom - scene.ngeom]:
-            mujoco.mjv_initGeom(
-                scene.geoms[scene.ngeom], mujoco.mjtGeom.mjGEOM_SPHERE, rad, p.astype(float),
-                eye, rgba,
-            )  # fmt: skip
-            scene.ngeom += 1
-        return r.render()
+        x, spacing = self.solver.positions(), self.solver_config.spacing
+        # geom group 3: the planner's capsules
+        return render_scene(self._renderer, self.data, cam, x, spacing, hidden_groups=(3,))
 
     def close(self) -> None:
         if self._renderer is not None:

@@ -111,12 +111,9 @@ def count_particles(
 
 
 class LiquidCounter:
-    """Counts a solver's particles in containers of the given shapes, on its device.
-
-    Args:
-        solver: the solver whose particles are counted.
-        shapes: the distinct container shapes the counts refer to by index.
-        margin: how far above an open rim a particle still counts as inside, m.
+    """Counts a solver's particles in containers of the distinct ``shapes`` (the counts refer
+    to them by index), on its device; ``margin`` (m): how far above an open rim a particle
+    still counts as inside.
     """
 
     def __init__(self, solver: PBFSolver, shapes: Sequence[ContainerShape], margin: float) -> None:

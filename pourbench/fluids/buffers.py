@@ -89,6 +89,11 @@ class DeviceBuffers:
     any_active: wp.array
     cols: K.Colliders
 
+    @property
+    def lists(self) -> tuple[wp.array, wp.array, wp.array, int]:
+        """The neighbour lists as the pair kernels take them: entries, starts, counts, stride."""
+        return self.nbr, self.nbr_start, self.nbr_count, self.nbr_stride
+
     @classmethod
     def allocate(
         cls,
@@ -116,6 +121,7 @@ class DeviceBuffers:
         start = np.zeros(n, np.int32) if half_lists else np.arange(n, dtype=np.int32)
         buckets = 1 << max(10, math.ceil(math.log2(max(2 * n, 1))))
         sort_size = 2 * max(n, 1)
+        vectors = ("x_prev", "p", "p_sorted", "delta", "omega", "normal", "v_tmp", "eta", "dv_sum")
         return cls(
             n=n,
             x=wp.array(x, dtype=wp.vec3, device=device),
@@ -123,23 +129,12 @@ class DeviceBuffers:
             world=wp.array(world, dtype=wp.int32, device=device),
             top=floats(top),
             bottom=floats(bottom),
-            x_prev=zeros(n),
-            p=zeros(n),
-            p_sorted=zeros(n),
-            delta=zeros(n),
-            omega=zeros(n),
-            normal=zeros(n),
-            v_tmp=zeros(n),
-            eta=zeros(n),
-            lam=zeros(n, float),
+            **{name: zeros(n) for name in vectors},
+            **{name: zeros(n, float) for name in ("lam", "push", "clear", "density")},
             sums=zeros(n, K.vec5),
             vsum=zeros(n, wp.vec4),
-            dv_sum=zeros(n),
-            push=zeros(n, float),
-            clear=zeros(n, float),
             wall=zeros(n, K.vec5),
             wall_collider=wp.full(n, -1, dtype=wp.int32, device=device),
-            density=zeros(n, float),
             contacts=zeros(n, wp.int32),
             order_keys=zeros(sort_size, wp.int64),
             order=zeros(sort_size, wp.int32),

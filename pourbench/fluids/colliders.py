@@ -124,14 +124,10 @@ def collider_table(
     rows = [colliders[i] for i in order]
     counts = [len(c.params) for c in rows]
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int) if rows else []
-    wstart = np.zeros(num_worlds, np.int32)
-    wend = np.zeros(num_worlds, np.int32)
-    for w in range(num_worlds):
-        idx = [k for k, c in enumerate(rows) if c.world == w]
-        wstart[w] = idx[0] if idx else 0
-        wend[w] = idx[-1] + 1 if idx else 0
     bounds = np.array([collider_bound(c) for c in rows], float)
     worlds = np.array([c.world for c in rows], int)
+    wstart = np.searchsorted(worlds, np.arange(num_worlds), side="left").astype(np.int32)
+    wend = np.searchsorted(worlds, np.arange(num_worlds), side="right").astype(np.int32)
 
     def ints(values: object) -> wp.array:
         return wp.array(values, dtype=wp.int32, device=device)

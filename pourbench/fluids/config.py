@@ -52,12 +52,9 @@ class SolverConfig:
             decays; at 0.7 it comes to rest at the price of slightly more compression.
         reorder_every: steps between spatial re-sorts of the particle arrays (0: never).
             Particle order inside a world therefore changes over time.
-        graph: record a step's launches once as graphs (CUDA graphs, or Warp's CPU capture)
-            and replay them (re-recorded when the scene changes): no Python and no argument
-            packing per launch. A step is three: its start (prediction, neighbour lists, the
-            first ``iterations``), one extra iteration (replayed while some world is above
-            ``max_density_error``) and its end. The re-sort and the list-capacity check run
-            outside them on their steps. Same kernels and order, so the same results. On a
+        graph: record each part of a step (:mod:`pourbench.fluids.step`) once as a graph (CUDA
+            graphs, or Warp's CPU capture) and replay it, re-recorded when the scene changes: no
+            Python and no argument packing per launch, the same kernels in the same order. On a
             CUDA device without Warp's memory pool the step is launched kernel by kernel.
         viscosity_tolerance: the implicit viscosity solve of a world with a dynamic viscosity
             (``LiquidProfile.viscosity_pa_s``) stops when its residual is at most this
@@ -126,13 +123,8 @@ class SolverConfig:
 
     def __post_init__(self) -> None:
         for name in (
-            "spacing",
-            "dt",
-            "smoothing",
-            "max_speed",
-            "calibration_dt",
-            "rest_packing",
-            "laplacian_packing",
+            *("spacing", "dt", "smoothing", "max_speed", "calibration_dt", "rest_packing"),
+            *("laplacian_packing", "sor", "viscosity_tolerance"),
         ):
             check_finite(name, getattr(self, name), minimum=1e-9)
         if self.smoothing <= 1.0:
@@ -142,22 +134,12 @@ class SolverConfig:
         if not 0.0 <= check_finite("scorr_dq", self.scorr_dq) < 1.0:
             raise InvalidParameterError(f"scorr_dq must be in [0, 1) (of h), got {self.scorr_dq!r}")
         for name in (
-            "relaxation",
-            "scorr_k",
-            "scorr_n",
-            "scorr_dq",
-            "viscosity_rate",
-            "xsph_viscosity",
-            "sleep_threshold",
-            "cohesion_accel",
-            "surface_tension_accel",
-            "adhesion_gain",
+            *("relaxation", "scorr_k", "scorr_n", "viscosity_rate", "xsph_viscosity"),
+            *("sleep_threshold", "cohesion_accel", "surface_tension_accel", "adhesion_gain"),
+            "max_density_error",
         ):
             check_finite(name, getattr(self, name), minimum=0.0)
-        check_finite("sor", self.sor, minimum=1e-9)
-        check_finite("viscosity_tolerance", self.viscosity_tolerance, minimum=1e-9)
         check_int("viscosity_max_iterations", self.viscosity_max_iterations, minimum=1)
-        check_finite("max_density_error", self.max_density_error, minimum=0.0)
         for name, minimum in (("iterations", 1), ("max_neighbours", 1), ("reorder_every", 0)):
             check_int(name, getattr(self, name), minimum=minimum)
         check_int("max_iterations", self.max_iterations, minimum=self.iterations)
@@ -257,10 +239,8 @@ def rest_sums(cfg: SolverConfig) -> tuple[float, float, float]:
             units, so ``spiky_grad(..., grad_c)`` is ∇C directly, 1/m⁴ · m.
         sum_grad2: Σ|∇C|² of the full neighbourhood, 1/m².
     """
-    h, d = cfg.h, cfg.spacing
-    n = math.ceil(h / d)
-    g = np.arange(-n, n + 1) * d
-    r = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    h = cfg.h
+    r = lattice(cfg)
     dist = np.linalg.norm(r, axis=1)
     w0 = cfg.rest_packing * float(np.where(dist < h, (h - dist) ** 3, 0.0).sum())
     grad_c = -3.0 / w0  # d/dr of (h − r)³, over the rest sum

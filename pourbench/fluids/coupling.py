@@ -44,6 +44,8 @@ _GEOM_KIND = {
     mujoco.mjtGeom.mjGEOM_BOX: "box",
     mujoco.mjtGeom.mjGEOM_MESH: "mesh",
 }
+_GEOM_SIZES = {"plane": 0, "sphere": 1, "capsule": 2, "cylinder": 2, "box": 3, "mesh": 0}
+"""How many of a geom's ``geom_size`` entries its collider takes (none: one ignored 0)."""
 
 
 @dataclass
@@ -93,7 +95,7 @@ class MujocoCoupling:
                 f"model.opt.timestep={model.opt.timestep} must equal the fluid dt="
                 f"{solver.config.dt}"
             )
-        self.solver, self.model, self.datas = solver, model, list(datas)
+        self.solver, self.model, self.datas = solver, model, datas
         self.bindings: list[_Binding] = []
         self._gathered: _Gather | None = None
         self.slots: dict[tuple[int, int], int] = {}
@@ -153,15 +155,7 @@ class MujocoCoupling:
                 )
         for g in ids:
             kind = _GEOM_KIND[int(m.geom_type[g])]
-            size = m.geom_size[g]
-            params = {
-                "plane": [0.0],
-                "sphere": [size[0]],
-                "capsule": [size[0], size[1]],
-                "cylinder": [size[0], size[1]],
-                "box": list(size),
-                "mesh": [0.0],
-            }[kind]
+            params = list(m.geom_size[g][: _GEOM_SIZES[kind]]) or [0.0]
             mesh = None
             if kind == "mesh":  # MuJoCo collides a mesh geom as its convex hull; so does the fluid
                 mid = m.geom_dataid[g]
@@ -235,16 +229,11 @@ class MujocoCoupling:
         xq, xm, xp, com = np.empty((n, 4)), np.empty((n, 9)), np.empty((n, 3)), np.empty((n, 3))
         for w, rows, bodies in g.groups:
             d = self.datas[w]
-            xq[rows], xm[rows], xp[rows], com[rows] = (
-                d.xquat[bodies],
-                d.xmat[bodies],
-                d.xpos[bodies],
-                d.xipos[bodies],
-            )
-        q = (g.right_mul @ xq[:, :, None])[:, :, 0]  # body quaternion ⊗ local quaternion
+            xq[rows], xm[rows] = d.xquat[bodies], d.xmat[bodies]
+            xp[rows], com[rows] = d.xpos[bodies], d.xipos[bodies]
         poses = np.empty((n, 7))
         poses[:, :3] = xp + (xm.reshape(n, 3, 3) @ g.local_pos[:, :, None])[:, :, 0]
-        poses[:, 3:] = q
+        poses[:, 3:] = (g.right_mul @ xq[:, :, None])[:, :, 0]  # body quaternion ⊗ local one
         self.solver.set_collider_poses(g.colliders, poses, com)
 
     def apply(self) -> None:

@@ -52,9 +52,8 @@ def _unbalanced(
     axis: Stokes' drag × the wall factor × (1 + 0.15 Re^0.687)."""
     re = rho_f * speed * 2.0 * radius / mu
     drag = 6.0 * math.pi * mu * radius * speed * haberman_sayre(radius / bore_radius)
-    return drag * (1.0 + 0.15 * re**0.687) - 4.0 / 3.0 * math.pi * radius**3 * GRAVITY * (
-        rho_s - rho_f
-    )
+    weight = 4.0 / 3.0 * math.pi * radius**3 * GRAVITY * (rho_s - rho_f)  # less buoyancy
+    return drag * (1.0 + 0.15 * re**0.687) - weight
 
 
 def marble_viscosity(

@@ -61,15 +61,10 @@ def liquid_metrics_all(
     k = len(cups[0]) if cups else 0
     cols = [[solver.colliders[c] for c in cs] for cs in cups]
     poses = np.array([[col.pose for col in cs] for cs in cols]).reshape(len(worlds), k, 7)
-    shapes: list = []
-    index: dict = {}
-    shape_index = np.zeros((len(worlds), k), int)
-    for row, cs in enumerate(cols):
-        for j, col in enumerate(cs):
-            shape_index[row, j] = index.setdefault(col.shape, len(shapes))
-            if shape_index[row, j] == len(shapes):
-                shapes.append(col.shape)
-    counter = LiquidCounter(solver, shapes, solver.config.spacing)
+    index: dict = {}  # each distinct shape's place in the counter's list, in order of use
+    indices = [[index.setdefault(col.shape, len(index)) for col in cs] for cs in cols]
+    shape_index = np.array(indices, int).reshape(len(worlds), k)
+    counter = LiquidCounter(solver, list(index), solver.config.spacing)
     inside, n_spilled, n_flight = counter.count(np.array(worlds, int), poses, shape_index)
     out = []
     for row, w in enumerate(worlds):

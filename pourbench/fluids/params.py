@@ -135,11 +135,6 @@ def _norm(name: str) -> str:
     return " ".join(name.lower().replace("-", " ").replace("_", " ").split())
 
 
-def default_liquids_path() -> Path:
-    """Path of the shipped ``liquids.toml``."""
-    return Path(str(resources.files("pourbench") / "assets" / "liquids.toml"))
-
-
 def load_liquids(path: str | Path | None = None) -> dict[str, LiquidProfile]:
     """Load every profile of a liquids TOML file, keyed by normalised name and alias.
 
@@ -147,7 +142,9 @@ def load_liquids(path: str | Path | None = None) -> dict[str, LiquidProfile]:
         ProfileFileError: the file is not valid TOML, or an entry has a missing, unknown, or
             non-numeric key; the message names the file and key.
     """
-    path = Path(path) if path is not None else default_liquids_path()
+    if path is None:  # the shipped file
+        path = str(resources.files("pourbench") / "assets" / "liquids.toml")
+    path = Path(path)
     doc = read_toml(path)
     defaults = doc.get("defaults", {})
     if not isinstance(defaults, dict):

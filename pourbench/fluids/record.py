@@ -22,12 +22,8 @@ def container_wireframe(shape: ContainerShape, segments: int = 24) -> list[np.nd
             np.stack([r * np.cos(ang), r * np.sin(ang), np.full_like(ang, z)], 1)
             for r, z in shape.points[1:]
         ]
-        ribs = [
-            np.stack([shape.points[:, 0] * np.cos(a), shape.points[:, 0] * np.sin(a)], 1)
-            for a in ang[:-1:3]
-        ]
-        ribs = [np.c_[rib, shape.points[:, 1]] for rib in ribs]
-        return rings + ribs
+        rho, height = shape.points[:, 0], shape.points[:, 1]
+        return rings + [np.c_[rho * np.cos(a), rho * np.sin(a), height] for a in ang[:-1:3]]
     assert isinstance(shape, BoxShell)
     hx, hy, w = shape.half_x, shape.half_y, shape.wall
     sq = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy], [-hx, -hy]])
@@ -73,8 +69,7 @@ class FluidRecorder:
         sl = s.world_slice(self.world)
         x, v = s.positions()[sl], s.velocities()[sl]
         self.rec.log(
-            "world/liquid",
-            rr.Points3D(x, radii=0.5 * s.config.spacing, colors=speed_colors(v)),
+            "world/liquid", rr.Points3D(x, radii=0.5 * s.config.spacing, colors=speed_colors(v))
         )
         for k, c in enumerate(s.colliders):
             if c.world != self.world or c.shape is None:

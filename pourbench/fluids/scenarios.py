@@ -110,12 +110,7 @@ def two_cup_scene(
     tx = lip_x + target.mouth_radius - overlap
     sz = target.rim_height + lift
     xml = _MJCF.format(
-        dt=repr(config.dt),
-        g=GRAVITY,
-        tx=tx,
-        tr=target.outer_radius,
-        sz=sz,
-        sr=source.outer_radius,
+        dt=repr(config.dt), g=GRAVITY, tx=tx, tr=target.outer_radius, sz=sz, sr=source.outer_radius
     )
     model = mujoco.MjModel.from_xml_string(xml)
     datas = [mujoco.MjData(model) for _ in range(num_worlds)]

@@ -8,24 +8,18 @@ predict (gravity, damping) → neighbour lists (spatial hash of (world, cell), r
 half lists on the CPU, each pair once and its terms added to both particles, full lists on
 CUDA, see ``SolverConfig.pair_lists``) → ``iterations`` Jacobi density iterations (λ with
 constraint-force mixing and a wall term for the liquid the nearest collider replaces, Δp with
-the s_corr tensile term, projection out of colliders) →
-swept collision with friction and adhesion (reaction summed
-per body) → velocity update (dissipation) → vorticity confinement, XSPH viscosity, cohesion,
-surface tension and particle friction.
+the s_corr tensile term, projection out of colliders) → swept collision with friction and
+adhesion (reaction summed per body) → velocity update (dissipation) → vorticity confinement,
+XSPH viscosity, cohesion, surface tension and particle friction.
 
-How FleX's dimensionless coefficients become rates here (documented, the same for all
-liquids): viscosity ν relaxes each particle's velocity toward its neighbours' kernel mean
-by ``a = κν / (1 + κν)`` per step of ``SolverConfig.calibration_dt`` (rescaled to other steps
-so that the relaxation per second is the same) with κ = ``SolverConfig.viscosity_rate``;
-cohesion and surface tension are accelerations ``coefficient × cohesion_accel`` (Akinci
-et al. 2013 forms); particle friction is likewise a fraction per calibration step (rescaled
-the same way); adhesion pulls particles within half a spacing of a surface back onto it and
-adds grip to the wall friction, as a force (a spring and a grip rescaled to any step); damping
-is a drag rate (1/s); dissipation damps velocity per shape contact (1/s per contact: FleX
-damps "based on how many particle contacts it has", and were every liquid neighbour a
-contact, Table 3.5's dish soap, 5, could not pour). FleX's ``buoyancy`` scales gravity for
-gases in FleX; it is kept in the profiles for provenance but not applied, so that a
-container's weight is the liquid's.
+FleX's dimensionless coefficients become rates the same way for every liquid: XSPH viscosity,
+particle friction and adhesion per step of ``SolverConfig.calibration_dt``, rescaled to any
+step (:meth:`PBFSolver.step_fractions`); cohesion and surface tension are accelerations
+(``SolverConfig.cohesion_accel``, Akinci et al. 2013 forms); damping is a drag rate (1/s);
+dissipation damps velocity per shape contact (1/s per contact: FleX damps "based on how many
+particle contacts it has", and were every liquid neighbour a contact, Table 3.5's dish soap,
+5, could not pour). FleX's ``buoyancy`` is not applied, so that a container's weight is the
+liquid's.
 """
 
 from __future__ import annotations
@@ -288,11 +282,7 @@ class PBFSolver:
         self._x, self._v, self._world = self._x[keep], self._v[keep], self._world[keep]
 
     def fill(
-        self,
-        world: int,
-        collider: int,
-        mass_g: float,
-        liquid: str | LiquidProfile | None = None,
+        self, world: int, collider: int, mass_g: float, liquid: str | LiquidProfile | None = None
     ) -> int:
         """Place ``mass_g`` grams of liquid at rest density in a container collider.
 
@@ -316,8 +306,7 @@ class PBFSolver:
             )
         if liquid is not None:
             self.set_liquid(world, liquid)
-        rho = self.liquids[world].density
-        m = rho * self.config.spacing**3
+        m = self.particle_mass(world)
         n = round(mass_g * 1e-3 / m)
         local = container_lattice(c.shape, self.config.spacing)
         if n > len(local):
@@ -361,8 +350,7 @@ class PBFSolver:
           solved with compliance as in XPBD, so at ``dt`` the share is k dt² / (1 + k dt²)
           (f0 = 1, a lock, stays 1). The grip it adds to wall friction (``adhesion_grip``,
           m: FleX adhesion × ``SolverConfig.adhesion_range``) is a force's position change per
-          step and scales with r². Scaled per second instead, adhesion grew as 1/dt: honey
-          left 72 g of 200 in the cup at dt = 1/480 s against 8 g at 1/240.
+          step and scales with r² (per second instead, adhesion grew as 1/dt: docs/contact.md).
         """
         cfg = self.config
         xsph = [
@@ -578,15 +566,10 @@ class PBFSolver:
 
     def velocities(self) -> np.ndarray:
         """All particle velocities (n, 3), m/s: each particle's displacement over the last step
-        divided by ``dt``, the motion an observer sees.
-
-        The velocity the next step starts from also carries the impulses computed at the end
-        of this one (XSPH viscosity, vorticity confinement, cohesion, surface tension, particle
-        friction), which move particles only in the next step, where the density constraint
-        balances them: in water settled for 3 s (measured before the density constraint's wall
-        term) those impulses read about 2 mm/s on the median particle, which moved 0.3 mm/s
-        (docs/rest.md). Before the first step after a scene change, the velocities the
-        particles carry into it (as given to :meth:`add_particles`).
+        divided by ``dt``, the motion an observer sees. The velocity the next step starts from
+        also carries the end-of-step filters' impulses, which the density constraint balances
+        there: at rest they are not motion (docs/rest.md). Before the first step after a scene
+        change, the velocities the particles carry into it (as given to :meth:`add_particles`).
         """
         b = self.buf
         if self._dirty:
@@ -660,9 +643,7 @@ class PBFSolver:
         mask = nc >= 0.9 * full
         if world is not None:
             sl = self.world_slice(world)
-            sel = np.zeros(len(mask), bool)
-            sel[sl] = True
-            mask &= sel
+            rho, mask = rho[sl], mask[sl]
         if not mask.any():
             return float("nan")
         return float(np.mean(np.abs(rho[mask] - 1.0)))

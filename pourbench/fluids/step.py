@@ -25,17 +25,11 @@ if TYPE_CHECKING:
 
 
 class StepLaunches:
-    """The launches of a step on ``buf``.
-
-    Args:
-        config: the solver's settings.
-        device: the Warp device of ``buf``.
-        constants: the density constraint's constants for ``config``.
-        half_lists: half neighbour lists (else full ones, ``SolverConfig.pair_lists``).
-        buf: the device arrays.
-        up: unit vector against gravity.
-        liquids: each world's liquid; the curl is computed when some liquid has vorticity
-            confinement, colour-field normals with it or when some has surface tension.
+    """The launches of a step on ``buf`` (on ``device``), for the density constraint's
+    ``constants`` of ``config``, with half neighbour lists or full ones (``half_lists``,
+    ``SolverConfig.pair_lists``) and ``up`` the unit vector against gravity. The curl is
+    computed when some of ``liquids`` (one per world) has vorticity confinement, colour-field
+    normals with it or when some has surface tension.
     """
 
     def __init__(
@@ -98,10 +92,7 @@ class StepLaunches:
         """
         b = self.buf
         self.launch(
-            "order_keys",
-            K.order_keys,
-            [b.x, b.world, 1.0 / self.config.h],
-            [b.order_keys, b.order],
+            "order_keys", K.order_keys, [b.x, b.world, 1.0 / self.config.h], [b.order_keys, b.order]
         )
         # keys: world above 33 Morton bits; sorting only the bits in use is several times faster
         key_bits = 33 + max(1, (self.num_worlds - 1).bit_length())
@@ -126,11 +117,7 @@ class StepLaunches:
         b = self.buf
         cfg = self.config
         self.launch(
-            "start_worlds",
-            K.start_worlds,
-            [],
-            [b.active, b.share, b.extra],
-            self.num_worlds,
+            "start_worlds", K.start_worlds, [], [b.active, b.share, b.extra], self.num_worlds
         )
         b.cols.force.zero_()
         b.cols.torque.zero_()
@@ -188,10 +175,7 @@ class StepLaunches:
             self.pairk.density_sums,
             [
                 b.p,
-                b.nbr,
-                b.nbr_start,
-                b.nbr_count,
-                b.nbr_stride,
+                *b.lists,
                 cfg.h,
                 self.k.grad_c,
                 scorr,
@@ -226,10 +210,7 @@ class StepLaunches:
             self.pairk.compute_delta,
             [
                 b.p,
-                b.nbr,
-                b.nbr_start,
-                b.nbr_count,
-                b.nbr_stride,
+                *b.lists,
                 b.lam,
                 b.density,
                 b.pair,
@@ -313,10 +294,7 @@ class StepLaunches:
                 [
                     b.x,
                     b.v,
-                    b.nbr,
-                    b.nbr_start,
-                    b.nbr_count,
-                    b.nbr_stride,
+                    *b.lists,
                     cfg.h,
                     self.k.grad_c,
                     int(self._needs_curl),
@@ -331,10 +309,7 @@ class StepLaunches:
                 b.v,
                 b.omega,
                 b.normal,
-                b.nbr,
-                b.nbr_start,
-                b.nbr_count,
-                b.nbr_stride,
+                *b.lists,
                 b.world,
                 P["vorticity_confinement"],
                 P["cohesion"],
@@ -394,13 +369,7 @@ class StepLaunches:
             "bucket_ranges",
             K.bucket_ranges,
             [b.keys, b.sorted_idx, b.p, b.world, b.cell, n],
-            [
-                b.bucket_start,
-                b.bucket_end,
-                b.p_sorted,
-                b.world_sorted,
-                b.cell_sorted,
-            ],
+            [b.bucket_start, b.bucket_end, b.p_sorted, b.world_sorted, b.cell_sorted],
         )
         self.launch(
             "build_neighbours",

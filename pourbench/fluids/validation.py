@@ -462,17 +462,10 @@ SETTLING_TOLERANCE = 0.30
 :data:`SETTLING_RANGE_PA_S`, as a fraction of it."""
 
 FLEX_VELOCITY_TERMS = (
-    "viscosity",
-    "cohesion",
-    "surfaceTension",
-    "adhesion",
-    "staticFriction",
-    "dynamicFriction",
-    "particleFriction",
-    "vorticityConfinement",
+    *("viscosity", "cohesion", "surfaceTension", "adhesion", "vorticityConfinement"),
+    *("staticFriction", "dynamicFriction", "particleFriction"),
 )
-"""A profile's FleX terms that change velocities (XSPH, cohesion, surface tension, adhesion,
-friction, vorticity confinement)."""
+"""A profile's FleX terms that change velocities."""
 
 
 def newtonian(viscosity_pa_s: float, density: float = 1000.0) -> LiquidProfile:
@@ -535,11 +528,6 @@ def falling_ball(
         rho = s.liquids[w].density
         s.fill(w, s.add_container(w, shape), rho * (math.pi * bore**2 * depth - ball_volume) * 1e3)
 
-    def hold(worlds: Sequence[int], at: np.ndarray) -> None:
-        for w in worlds:
-            datas[w].qpos[0], datas[w].qvel[0] = at[w], 0.0
-            mujoco.mj_kinematics(model, datas[w])
-
     while s.time < settle - 1e-9:  # MuJoCo stands still: the sphere is held where it is
         coupling.sync()
         s.step()
@@ -550,8 +538,9 @@ def falling_ball(
     while s.time - start < seconds - 1e-9 and min(falls[-1]) < lowest:
         coupling.step()
         fall = np.array([-d.qpos[0] for d in datas])
-        landed = np.flatnonzero(fall >= lowest)
-        hold(landed, np.full(n, -lowest))  # stopped over the floor MuJoCo does not see
+        for w in np.flatnonzero(fall >= lowest):  # stopped over the floor MuJoCo does not see
+            datas[w].qpos[0], datas[w].qvel[0] = -lowest, 0.0
+            mujoco.mj_kinematics(model, datas[w])
         times.append(s.time - start)
         falls.append(np.minimum(fall, lowest))
     t, fall = np.array(times), np.array(falls)

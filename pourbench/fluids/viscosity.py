@@ -614,8 +614,7 @@ class ImplicitViscosity:
         self.solver = solver
         self.kernels = HALF_LISTS if solver.half_lists else FULL_LISTS
         cfg = solver.config
-        # 2(d+2) V · 45/(π h⁶) over the packing's share: V = spacing³, the spiky gradient's
-        # constant
+        # 2(d+2) V · 45/(π h⁶) over the packing: V = spacing³, 45/(π h⁶) the spiky gradient's
         self.coef = 10.0 * cfg.spacing**3 * 45.0 / (math.pi * cfg.h**6) / cfg.laplacian_packing
         self.c_w = wp.array(c_w, dtype=float, device=dev)
         start, owner, first = chunks(world_sizes)
@@ -628,8 +627,7 @@ class ImplicitViscosity:
         self.inv_m = wp.zeros(n, dtype=wp.mat33, device=dev)
         self.wall_t = wp.zeros(n, dtype=wp.vec2, device=dev)
         self.drag = wp.zeros((max(solver.num_body_slots, 1), DRAG_ENTRIES), wp.int64, device=dev)
-        vec = ("v_wall", "rhs", "sol", "res", "z", "direction", "q", "lap")
-        for name in vec:
+        for name in ("v_wall", "rhs", "sol", "res", "z", "direction", "q", "lap"):
             setattr(self, name, wp.zeros(n, dtype=wp.vec3, device=dev))
         self.partial = wp.zeros((self.num_chunks, 3), dtype=float, device=dev)
         nw = solver.num_worlds
@@ -645,7 +643,7 @@ class ImplicitViscosity:
         s.launches.launch(
             key,
             self.kernels.matvec,
-            [y, b.nbr, b.nbr_start, b.nbr_count, b.nbr_stride, b.world, active, self.u],
+            [y, *b.lists, b.world, active, self.u],
             [self.lap],
         )
 
@@ -657,12 +655,7 @@ class ImplicitViscosity:
         s.launches.launch(
             "visc_setup",
             self.kernels.setup,
-            [
-                *(b.x, b.nbr, b.nbr_start, b.nbr_count, b.nbr_stride, b.world),
-                self.c_w,
-                cfg.h,
-                self.coef,
-            ],
+            [b.x, *b.lists, b.world, self.c_w, cfg.h, self.coef],
             [self.u, self.diag],
         )
         s.launches.launch(
@@ -740,17 +733,8 @@ class ImplicitViscosity:
             "visc_finish",
             finish,
             [
-                b.world,
-                self.c_w,
-                b.mass,
-                cfg.dt,
-                b.x,
-                b.wall,
-                b.wall_collider,
-                self.wall_t,
-                self.v_wall,
-                self.sol,
-                b.cols,
+                *(b.world, self.c_w, b.mass, cfg.dt, b.x, b.wall, b.wall_collider),
+                *(self.wall_t, self.v_wall, self.sol, b.cols),
             ],
             [b.v],
         )

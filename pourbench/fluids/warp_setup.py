@@ -25,12 +25,6 @@ import warp as wp
 NO_DRIVER_NOTICE = "Warp CUDA warning: Could not find or load the NVIDIA CUDA driver"
 
 
-def without_no_driver_notice(text: str) -> str:
-    """``text`` less the lines that start with Warp's no-driver notice."""
-    lines = text.splitlines(keepends=True)
-    return "".join(line for line in lines if not line.startswith(NO_DRIVER_NOTICE))
-
-
 def init_warp() -> None:
     """Initialise Warp (idempotent); its native stderr output passes through, filtered."""
     wp.config.log_level = wp.LOG_WARNING  # no greeting or module-load lines on stdout
@@ -48,7 +42,8 @@ def init_warp() -> None:
             os.dup2(saved, 2)
             os.close(saved)
             captured.seek(0)
-            rest = without_no_driver_notice(captured.read().decode(errors="replace"))
+            lines = captured.read().decode(errors="replace").splitlines(keepends=True)
+            rest = "".join(line for line in lines if not line.startswith(NO_DRIVER_NOTICE))
             if rest:
                 sys.stderr.write(rest)
                 sys.stderr.flush()

@@ -15,9 +15,6 @@ import numpy as np
 
 from pourbench.errors import InvalidParameterError
 
-IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
-"""The identity quaternion (w, x, y, z)."""
-
 
 def quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors ``v`` (..., 3) by unit quaternion ``q`` (w, x, y, z): one (4,) for
@@ -57,7 +54,7 @@ def quat_z_to(axis: np.ndarray) -> np.ndarray:
     """A unit quaternion rotating +z onto ``axis`` (3,); the identity for a zero axis."""
     norm = np.linalg.norm(axis)
     if norm == 0.0:
-        return IDENTITY.copy()
+        return np.array([1.0, 0.0, 0.0, 0.0])
     a = np.asarray(axis, float) / norm
     c = float(a[2])
     if c < -1.0 + 1e-12:

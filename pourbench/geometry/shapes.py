@@ -124,12 +124,8 @@ class RevolvedShell:
         q = np.stack([np.hypot(p[..., 0], p[..., 1]), p[..., 2]], axis=-1)
         a, b = self.points[:-1], self.points[1:]
         ab = b - a
-        t = np.clip(
-            np.einsum("...kj,kj->...k", q[..., None, :] - a, ab) / np.einsum("kj,kj->k", ab, ab),
-            0.0,
-            1.0,
-        )
-        closest = a + t[..., None] * ab
+        t = np.einsum("...kj,kj->...k", q[..., None, :] - a, ab) / np.einsum("kj,kj->k", ab, ab)
+        closest = a + np.clip(t, 0.0, 1.0)[..., None] * ab
         dist = np.linalg.norm(q[..., None, :] - closest, axis=-1).min(axis=-1)
         return dist - self.wall / 2
 
@@ -259,8 +255,7 @@ def bottle(
     wall: float = 0.003,
 ) -> RevolvedShell:
     """Bottle: cylindrical body, conical shoulder, cylindrical neck (inner dimensions, m)."""
-    sizes = _sizes(**locals())  # every argument is a size
-    radius, body_height, neck_radius, neck_height, shoulder_height, wall = sizes
+    radius, body_height, neck_radius, neck_height, shoulder_height, wall = _sizes(**locals())
     r, n, h = radius + wall / 2, neck_radius + wall / 2, wall / 2
     pts = (
         (0.0, h),

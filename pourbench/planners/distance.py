@@ -33,11 +33,6 @@ def _vec3(name: str, v: object) -> np.ndarray:
     return a
 
 
-def _radius(name: str, v: float) -> float:
-    """A finite radius >= 0 (0: a point or a segment, which the distances handle)."""
-    return check_finite(name, v, minimum=0.0)
-
-
 @dataclass(frozen=True)
 class Sphere:
     """Sphere obstacle: ``center`` (m), ``radius`` (m), constant ``velocity`` (m/s)."""
@@ -49,7 +44,8 @@ class Sphere:
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _vec3("sphere center", self.center))
         object.__setattr__(self, "velocity", _vec3("sphere velocity", self.velocity))
-        object.__setattr__(self, "radius", _radius("sphere radius", self.radius))
+        # radius 0 (a point; for a capsule, a segment) is allowed: the distances handle it
+        object.__setattr__(self, "radius", check_finite("sphere radius", self.radius, minimum=0.0))
 
 
 @dataclass(frozen=True)
@@ -93,7 +89,7 @@ class Capsule:
         object.__setattr__(self, "velocity", _vec3("capsule velocity", self.velocity))
         object.__setattr__(self, "a", _vec3("capsule end a", self.a))
         object.__setattr__(self, "b", _vec3("capsule end b", self.b))
-        object.__setattr__(self, "radius", _radius("capsule radius", self.radius))
+        object.__setattr__(self, "radius", check_finite("capsule radius", self.radius, minimum=0.0))
 
 
 Obstacle = Sphere | Box | Capsule

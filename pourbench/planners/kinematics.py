@@ -175,13 +175,9 @@ class ArmKinematics:
     def _id(self, obj: mujoco.mjtObj, kind: str, name: str) -> int:
         i = mujoco.mj_name2id(self.model, obj, name)
         if i < 0:
-            known = []
             count = {"joint": self.model.njnt, "site": self.model.nsite, "geom": self.model.ngeom}
-            for k in range(count[kind]):
-                nm = mujoco.mj_id2name(self.model, obj, k)
-                if nm:
-                    known.append(nm)
-            raise UnknownNameError(kind, name, known)
+            known = [mujoco.mj_id2name(self.model, obj, k) for k in range(count[kind])]
+            raise UnknownNameError(kind, name, [k for k in known if k])
         return i
 
     @property
@@ -247,15 +243,13 @@ class ArmKinematics:
         T, n, K = qs.shape[0], self.n, self.num_capsules
         ee_pos = np.empty((T, 3))
         ee_quat = np.empty((T, 4))
-        jac_pos = np.empty((T, 3, n))
-        jac_rot = np.empty((T, 3, n))
+        jac_pos = np.zeros((T, 3, n))
+        jac_rot = np.zeros((T, 3, n))
         seg_a = np.empty((T, K, 3))
         seg_b = np.empty((T, K, 3))
         body_pos = np.empty((T, K, 3))
         body_jacp = np.zeros((T, K, 3, n))
         body_jacr = np.zeros((T, K, 3, n))
-        jac_pos[:] = 0.0
-        jac_rot[:] = 0.0
         d.qpos[:] = self.base_qpos
         gids, bids = self.geom_ids, self.geom_body
         gpos = np.empty((T, K, 3))
@@ -287,7 +281,6 @@ class ArmKinematics:
             half = self.half_length[None, :, None]
             seg_a[:] = gpos - half * gaxis
             seg_b[:] = gpos + half * gaxis
-        radius = self.radius
         return ArmState(
             q=qs.copy(),
             ee_pos=ee_pos,
@@ -296,7 +289,7 @@ class ArmKinematics:
             jac_rot=jac_rot,
             seg_a=seg_a,
             seg_b=seg_b,
-            radius=radius,
+            radius=self.radius,
             body_pos=body_pos,
             body_jacp=body_jacp,
             body_jacr=body_jacr,

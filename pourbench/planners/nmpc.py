@@ -196,14 +196,9 @@ def quat_jacobian(quat: np.ndarray, jac_rot: np.ndarray) -> np.ndarray:
 
 def horizon_matrix(ph: int, ch: int) -> np.ndarray:
     """M of Eq. 4.48, (ph + 1, ch): q_i = q_0 + t_s Σ_j M[i, j] u_j, last input held."""
-    M = np.zeros((ph + 1, ch))
-    for i in range(1, ph + 1):
-        for j in range(ch):
-            if j < ch - 1:
-                M[i, j] = 1.0 if j < i else 0.0
-            else:
-                M[i, j] = max(0, i - (ch - 1))
-    return M
+    i = np.arange(ph + 1)[:, None]
+    held = np.maximum(0, i - (ch - 1))  # steps the last input is held for
+    return np.hstack([(np.arange(ch - 1)[None, :] < i).astype(float), held])
 
 
 @dataclass
@@ -264,8 +259,7 @@ class NMPCPlanner:
                 "no configuration keeps that margin from both limits"
             )
         self.kin = kin
-        self.config = config
-        c = self.config
+        self.config = c = config
         self.n = n
         self.nU = n * c.ch
         self.u_max = speed
@@ -572,10 +566,7 @@ class NMPCPlanner:
         k = 0
         while k < c.max_iter:
             k += 1
-            if c.hessian == "bfgs":
-                H = B
-            else:
-                H = 2.0 * ev.Jr.T @ ev.Jr + 1e-9 * np.eye(self.nU)
+            H = B if c.hessian == "bfgs" else 2.0 * ev.Jr.T @ ev.Jr + 1e-9 * np.eye(self.nU)
             rows = self._rows(ev)
             out = self._solve_qp(H, ev.grad, ev, prob, elastic=False, rows=rows)
             if out is None:

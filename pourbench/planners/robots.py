@@ -30,7 +30,6 @@ class ArmSpec:
         capsules: the arm's collision capsules (geom group 3).
         body_boxes: static collision geoms of the robot's body (obstacles for this arm).
         other_capsules: the other arm's capsules (Movo), an obstacle in dual-arm planning.
-        other_joints: the other arm's joints.
         speed_cap: cap on the joint-speed bound taken from the actuators (rad/s).
     """
 
@@ -40,7 +39,6 @@ class ArmSpec:
     capsules: tuple[str, ...]
     body_boxes: tuple[str, ...] = ()
     other_capsules: tuple[str, ...] = ()
-    other_joints: tuple[str, ...] = ()
     speed_cap: float = 1.0
 
 
@@ -52,7 +50,6 @@ def _movo(side: str, other: str) -> ArmSpec:
         capsules=tuple(f"{side}_col_{i}" for i in range(1, 4)),
         body_boxes=("body_col_1", "body_col_2", "body_col_3"),
         other_capsules=tuple(f"{other}_col_{i}" for i in range(1, 4)),
-        other_joints=tuple(f"{other}_joint_{i}" for i in range(1, 8)),
     )
 
 

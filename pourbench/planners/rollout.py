@@ -17,6 +17,7 @@ from pourbench.errors import (
     check_array,
     check_finite,
     check_int,
+    check_positive,
     check_quat,
 )
 from pourbench.geometry.rotation import rotation_error
@@ -101,25 +102,22 @@ def run_to_goal(
     q = check_array("q0", q0, (kin.n,)).copy()
     goal_pos = check_array("goal_pos", goal_pos, (3,))
     goal_quat = check_quat("goal_quat", goal_quat)
-    qnorm = np.linalg.norm(goal_quat)
-    ts = check_finite("ts", ts)
-    if ts <= 0:
-        raise InvalidParameterError(f"ts must be > 0, got {ts!r}")
+    goal_quat = goal_quat / np.linalg.norm(goal_quat)
+    ts = check_positive("ts", ts)
     own = getattr(getattr(planner, "config", None), "ts", getattr(planner, "ts", None))
     if isinstance(own, int | float) and not np.isclose(ts, own, rtol=1e-9, atol=0.0):
         raise InvalidParameterError(f"ts {ts!r} differs from the planner's control period {own!r}")
     check_int("max_steps", max_steps, minimum=0)
     check_finite("pos_tol", pos_tol, minimum=0.0)
     check_finite("rot_tol", rot_tol, minimum=0.0)
-    goal_quat = goal_quat / qnorm
     qs, ee, quats, us, times, iters = [q.copy()], [], [], [], [], []
     p, xi = kin.ee_pose(q)
     ee.append(p)
     quats.append(xi)
-    reached_at = -1
+    reached = False
     for step in range(max_steps):
         if np.linalg.norm(p - goal_pos) <= pos_tol and rotation_error(xi, goal_quat) <= rot_tol:
-            reached_at = step
+            reached = True
             if stop_at_goal:
                 break
         obs = obstacles(step) if callable(obstacles) else obstacles
@@ -134,18 +132,14 @@ def run_to_goal(
         iters.append(res.iterations)
         if on_step is not None:
             on_step(step, q)
-    else:
-        if np.linalg.norm(p - goal_pos) <= pos_tol and rotation_error(xi, goal_quat) <= rot_tol:
-            reached_at = max_steps
     pos_err = float(np.linalg.norm(p - goal_pos))
     rot_err = rotation_error(xi, goal_quat)
-    success = reached_at >= 0
-    n = len(q)
+    success = reached or (pos_err <= pos_tol and rot_err <= rot_tol)  # at goal now or before
     return Rollout(
         qs=np.array(qs),
         ee=np.array(ee),
         quat=np.array(quats),
-        us=np.array(us) if us else np.zeros((0, n)),
+        us=np.array(us) if us else np.zeros((0, len(q))),
         solve_times=np.array(times),
         iterations=np.array(iters, dtype=int),
         success=success,

@@ -5,8 +5,8 @@ an online forward variable, finite-horizon LQT from HSMM step-wise Gaussians, or
 
 * :mod:`~pourbench.teleop.hsmm`: Gaussian-duration HSMM, EM training, forward variable;
 * :mod:`~pourbench.teleop.lqt`: discrete LQT on a double integrator (Eq. 2.45-2.49);
-* :mod:`~pourbench.teleop.cpd`: rigid / affine / non-rigid Coherent Point Drift, with the
-  Fast Gauss Transform and low-rank kernel accelerations;
+* :mod:`~pourbench.teleop.cpd`: rigid and non-rigid Coherent Point Drift, with the Fast
+  Gauss Transform and low-rank kernel accelerations;
 * :mod:`~pourbench.teleop.network`: packets every 33 ms, outages, 50 ms deadline detector;
 * :mod:`~pourbench.teleop.skills`: skill library (HSMM + LQT per skill, recognition);
 * :mod:`~pourbench.teleop.confidence`: the calibrated open-set recognition confidence;
@@ -24,11 +24,9 @@ from pourbench.teleop.confidence import (
     open_set_posterior,
 )
 from pourbench.teleop.cpd import (
-    AffineResult,
     NonRigidResult,
     RigidResult,
     gauss_transform,
-    register_affine,
     register_nonrigid,
     register_rigid,
 )
@@ -73,7 +71,6 @@ __all__ = [
     "LETTER_DURATION_S",
     "MODES",
     "WINDOWS",
-    "AffineResult",
     "CalibrationExample",
     "DeadlineDetector",
     "Demo",
@@ -102,7 +99,6 @@ __all__ = [
     "lqt_track",
     "open_set_posterior",
     "random_outages",
-    "register_affine",
     "register_nonrigid",
     "register_rigid",
     "register_skill",

@@ -1,4 +1,4 @@
-"""Coherent Point Drift (Myronenko & Song, 2010): rigid, affine and non-rigid registration.
+"""Coherent Point Drift (Myronenko & Song, 2010): rigid and non-rigid registration.
 
 Written by hand in numpy/scipy: no maintained library in our dependency set provides CPD.
 ``Y`` (M x D, the template, e.g. a learned skill) is registered onto ``X`` (N x D, the data,
@@ -8,11 +8,8 @@ with a uniform outlier component of weight ``w``; EM alternates
 * E-step: ``P[m, n] = exp(-|x_n - T(y_m)|^2 / 2 s2) / (sum_k exp(...) + c)`` with
   ``c = (2 pi s2)^(D/2) w / (1 - w) M / N`` (thesis Eq. 2.68);
 * M-step: the closed-form update of the transform and ``s2`` (rigid: Procrustes with scale,
-  the rotation by SVD, or by its angle in 2-D; affine: weighted least squares; non-rigid:
-  ``T(Y) = Y + G W`` with the motion-coherence regulariser ``lmbda`` and Gaussian kernel
-  width ``beta``, thesis Eq. 5.8).
-
-Rigid CPD can resume an earlier run (``init``), e.g. one stopped at a looser tolerance.
+  the rotation by SVD, or by its angle in 2-D; non-rigid: ``T(Y) = Y + G W`` with the
+  motion-coherence regulariser ``lmbda`` and Gaussian kernel width ``beta``, thesis Eq. 5.8).
 
 Two accelerations of the non-rigid path, usable separately, measured by
 ``pourbench bench teleop``:
@@ -48,11 +45,9 @@ from pourbench.errors import (
 )
 
 __all__ = [
-    "AffineResult",
     "NonRigidResult",
     "RigidResult",
     "gauss_transform",
-    "register_affine",
     "register_nonrigid",
     "register_rigid",
 ]
@@ -254,8 +249,7 @@ def gauss_transform(
         j = int(np.argmax(dist))
         centres.append(j)
         dj = np.sum((sources - sources[j]) ** 2, axis=1)
-        closer = dj < dist
-        label[closer] = k
+        label[dj < dist] = k
         dist = np.minimum(dist, dj)
     if best is None:
         return None
@@ -320,29 +314,6 @@ class RigidResult:
     def transform(self, pts: np.ndarray) -> np.ndarray:
         """Apply the transform to other (K, D) points (finite, the registration's D)."""
         return self.s * _check_points("pts", pts, self.R.shape[0]) @ self.R.T + self.t
-
-
-@dataclass(frozen=True)
-class AffineResult:
-    """Affine transform ``T(y) = B y + t``.
-
-    Attributes:
-        points: (M, D) transformed ``Y``.
-        B: (D, D) linear part.
-        t: (D,) translation.
-        sigma2: final mixture variance.
-        iterations: EM iterations run.
-    """
-
-    points: np.ndarray
-    B: np.ndarray
-    t: np.ndarray
-    sigma2: float
-    iterations: int
-
-    def transform(self, pts: np.ndarray) -> np.ndarray:
-        """Apply the transform to other (K, D) points (finite, the registration's D)."""
-        return _check_points("pts", pts, self.B.shape[0]) @ self.B.T + self.t
 
 
 @dataclass(frozen=True)
@@ -451,10 +422,10 @@ def register_rigid(
         new = (xx - s * trAR) / (e.Np * D) if scale else (xx - 2 * trAR + yy) / (e.Np * D)
         TY = s * Y @ R.T + t
         new = max(new, floor)
-        if abs(new - s2) <= tol * s2 or new <= floor:
-            s2 = new
-            break
+        done = abs(new - s2) <= tol * s2 or new <= floor
         s2 = new
+        if done:
+            break
     return RigidResult(TY, R, t, float(s), float(s2), it)
 
 
@@ -469,56 +440,6 @@ def _check_init(init: RigidResult, D: int) -> tuple[np.ndarray, np.ndarray, floa
     if not np.all(np.isfinite(vals)) or init.sigma2 <= 0 or init.s <= 0:
         raise InvalidParameterError("init must have a finite transform, s > 0 and sigma2 > 0")
     return R, t, float(init.s), float(init.sigma2)
-
-
-def register_affine(
-    X: np.ndarray, Y: np.ndarray, w: float = 0.0, *, max_iter: int = 200, tol: float = 1e-10
-) -> AffineResult:
-    """Affine CPD of ``Y`` onto ``X`` (see :func:`register_rigid` for the arguments).
-
-    Raises:
-        InvalidParameterError: as :func:`register_rigid`; also when ``Y`` does not span all
-            D dimensions (fewer than D + 1 points, or all on one line / plane), since the
-            linear part is then undetermined.
-    """
-    X, Y, w = _check_pair(X, Y, w, max_iter, tol)
-    D = X.shape[1]
-    if Y.shape[0] <= D or np.linalg.matrix_rank(Y - Y.mean(axis=0)) < D:
-        raise InvalidParameterError(
-            f"Y must span all {D} dimensions for an affine registration (at least {D + 1} "
-            f"points, not all on one line or plane), got {Y.shape[0]} points of rank "
-            f"{int(np.linalg.matrix_rank(Y - Y.mean(axis=0)))}"
-        )
-    s2 = _init_s2(X, Y)
-    floor = _S2_FLOOR * max(float(np.var(X, axis=0).sum()), 1e-300)
-    B, t = np.eye(D), np.zeros(D)
-    TY = Y.copy()
-    it = 0
-    for it in range(1, max_iter + 1):  # noqa: B007
-        e = _estep_direct(X, TY, s2, w)
-        if e.Np <= 0.0:
-            break
-        mux = X.T @ e.Pt1 / e.Np
-        muy = Y.T @ e.P1 / e.Np
-        XPY = e.PX.T @ Y - e.Np * np.outer(mux, muy)  # Xhat^T P^T Yhat  (D, D)
-        YPY = (Y * e.P1[:, None]).T @ Y - e.Np * np.outer(muy, muy)
-        try:
-            B = np.linalg.solve(YPY.T, XPY.T).T
-        except np.linalg.LinAlgError as exc:
-            raise InvalidParameterError(
-                "affine CPD failed: the weighted template Y became singular (too few "
-                f"matched points spanning {D} dimensions)"
-            ) from exc
-        t = mux - B @ muy
-        xx = float(np.sum(e.Pt1 * np.sum(X**2, axis=1)) - e.Np * mux @ mux)
-        new = (xx - float(np.trace(XPY @ B.T))) / (e.Np * D)
-        TY = Y @ B.T + t
-        new = max(new, floor)
-        if abs(new - s2) <= tol * s2 or new <= floor:
-            s2 = new
-            break
-        s2 = new
-    return AffineResult(TY, B, t, float(s2), it)
 
 
 def _kernel(Y: np.ndarray, beta: float) -> np.ndarray:
@@ -567,10 +488,8 @@ def register_nonrigid(
             degenerate ``Y`` is allowed), or any of the ranges above violated.
     """
     X, Y, w = _check_pair(X, Y, w, max_iter, tol)
-    beta = check_finite("beta", beta)
-    lmbda = check_finite("lmbda", lmbda)
-    if beta <= 0 or lmbda <= 0:
-        raise InvalidParameterError(f"beta and lmbda must be > 0, got {beta}, {lmbda}")
+    beta = check_positive("beta", beta)
+    lmbda = check_positive("lmbda", lmbda)
     rt = check_finite("rank_tol", rank_tol, minimum=0.0)
     if rt >= 1.0:
         raise InvalidParameterError(f"rank_tol must be in [0, 1), got {rank_tol!r}")
@@ -641,10 +560,10 @@ def register_nonrigid(
         trPXT = float(np.vdot(e.PX, TY))
         trTPT = float(e.P1 @ np.einsum("ij,ij->i", TY, TY))
         new = max((xPx - 2.0 * trPXT + trTPT) / (e.Np * D), floor)
-        if abs(new - s2) <= tol * s2 or new <= floor:
-            s2 = new
-            break
+        done = abs(new - s2) <= tol * s2 or new <= floor
         s2 = new
+        if done:
+            break
     if last is not None:
         rhs, U, z, ls2 = last
         W = (rhs - U @ z) / ls2

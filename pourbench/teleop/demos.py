@@ -168,13 +168,17 @@ def _arc_resample(pts: np.ndarray, n: int) -> np.ndarray:
     return np.stack([np.interp(u, s, pts[:, d]) for d in range(pts.shape[1])], axis=1)
 
 
-def _finish(raw: np.ndarray, length: float, corner: float = 0.012) -> np.ndarray:
-    """Round corners (Gaussian along arc length), centre on the bbox, scale to ``length`` m."""
+def _finish(
+    raw: np.ndarray, length: float, corner: float = 0.012, centre: bool = True
+) -> np.ndarray:
+    """Round corners (Gaussian along arc length), centre on the bbox (if ``centre``), scale
+    to ``length`` m."""
     dense = _arc_resample(raw, 2000)
     sig = corner * 2000
     sm = gaussian_filter1d(dense, sig, axis=0, mode="nearest")
     sm = _arc_resample(sm, 2000)
-    sm -= 0.5 * (sm.min(axis=0) + sm.max(axis=0))
+    if centre:
+        sm -= 0.5 * (sm.min(axis=0) + sm.max(axis=0))
     total = float(np.sum(np.linalg.norm(np.diff(sm, axis=0), axis=1)))
     return sm * (length / total)
 
@@ -207,12 +211,7 @@ def feeding_template(target: str) -> np.ndarray:
         (0.0, 0.05, 0.25),
         (0.0, 0.0, 0.12),
     ]
-    raw = np.array(way, dtype=float)
-    dense = _arc_resample(raw, 2000)
-    sm = gaussian_filter1d(dense, 0.01 * 2000, axis=0, mode="nearest")
-    sm = _arc_resample(sm, 2000)
-    total = float(np.sum(np.linalg.norm(np.diff(sm, axis=0), axis=1)))
-    return sm * (FEEDING_LENGTH_M / total)
+    return _finish(np.array(way, dtype=float), FEEDING_LENGTH_M, corner=0.01, centre=False)
 
 
 @dataclass(frozen=True)

@@ -218,19 +218,14 @@ class HSMM:
         self.sigma = np.array([np.cov(np.concatenate(b).T) + np.diag(reg) for b in buckets])
         mean_len = float(np.mean([s.shape[0] for s in seqs]))
         stay = max(0.0, 1.0 - K / mean_len)
-        A = np.zeros((K, K))
-        for k in range(K):
-            if self.left_right:
-                A[k, k] = stay if k < K - 1 else 1.0
-                if k < K - 1:
-                    A[k, k + 1] = 1.0 - stay
-            else:
-                A[k] = (1.0 - stay) / max(K - 1, 1)
-                A[k, k] = stay if K > 1 else 1.0
-        pri = np.zeros(K)
-        pri[0] = 1.0
-        if not self.left_right:
-            pri[:] = 1.0 / K
+        if self.left_right:
+            A = stay * np.eye(K) + (1.0 - stay) * np.eye(K, k=1)
+            A[-1, -1] = 1.0
+            pri = np.eye(K)[0]  # start in state 0
+        else:
+            A = np.full((K, K), (1.0 - stay) / max(K - 1, 1))
+            np.fill_diagonal(A, stay if K > 1 else 1.0)
+            pri = np.full(K, 1.0 / K)
         self.trans, self.priors = A, pri
         total = sum(s.shape[0] for s in seqs)
         Tmax = max(s.shape[0] for s in seqs)
@@ -328,33 +323,18 @@ class HSMM:
 
     def _log_durations(self, dmax: int) -> tuple[np.ndarray, np.ndarray]:
         """(K, dmax) log pmf and log survival of durations 1..dmax."""
-        d = np.arange(1, dmax + 1)[None, :]
-        lp = -0.5 * ((d - self.dur_mu[:, None]) / self.dur_sigma[:, None]) ** 2
-        # normalise over a long support so truncation at dmax does not bias short prefixes
+        # normalise over a long support (>= dmax) so truncation does not bias short prefixes
         big = np.arange(1, int(max(dmax, self.dur_mu.max() + 10 * self.dur_sigma.max())) + 1)
-        lz = logsumexp(
-            -0.5 * ((big[None, :] - self.dur_mu[:, None]) / self.dur_sigma[:, None]) ** 2, axis=1
-        )
-        lp = lp - lz[:, None]
-        lfull = (
-            -0.5 * ((big[None, :] - self.dur_mu[:, None]) / self.dur_sigma[:, None]) ** 2
-            - lz[:, None]
-        )
+        lfull = -0.5 * ((big[None, :] - self.dur_mu[:, None]) / self.dur_sigma[:, None]) ** 2
+        lfull = lfull - logsumexp(lfull, axis=1)[:, None]
         # survival S(d) = sum_{d' >= d} p(d')
-        lsurv_full = np.flip(np.logaddexp.accumulate(np.flip(lfull, axis=1), axis=1), axis=1)
-        if lsurv_full.shape[1] >= dmax:
-            lsurv = lsurv_full[:, :dmax]
-        else:
-            lsurv = np.full((self.n_states, dmax), _LOG0)
-            lsurv[:, : lsurv_full.shape[1]] = lsurv_full
-        return lp, lsurv
+        lsurv = np.flip(np.logaddexp.accumulate(np.flip(lfull, axis=1), axis=1), axis=1)
+        return lfull[:, :dmax], lsurv[:, :dmax]
 
     def _is_chain(self) -> bool:
         """True when states can only be entered from the previous one (left-right chain)."""
-        A = self._semi_trans()
-        K = self.n_states
-        chain = np.eye(K, k=1)
-        return bool(np.allclose(A[:-1], chain[:-1]) and self.priors[0] == 1.0)
+        chain = np.eye(self.n_states, k=1)
+        return bool(np.allclose(self._semi_trans()[:-1], chain[:-1]) and self.priors[0] == 1.0)
 
     def _segments(self, lB: np.ndarray, lp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Log ``incoming[s, i]`` (a segment of i starts at s) and ``C`` (cumulative emissions).

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.errors import InvalidParameterError, check_finite, check_int
+from pourbench.errors import InvalidParameterError, check_int, check_positive
 
 __all__ = ["LQTResult", "double_integrator", "lqt_track"]
 
@@ -36,9 +36,7 @@ def double_integrator(dim: int, dt: float = 1.0) -> tuple[np.ndarray, np.ndarray
         InvalidParameterError: ``dim`` not an integer >= 1 or ``dt`` not finite and > 0.
     """
     dim = check_int("dim", dim, minimum=1)
-    dt = check_finite("dt", dt)
-    if dt <= 0:
-        raise InvalidParameterError(f"dt must be > 0, got {dt}")
+    dt = check_positive("dt", dt)
     eye = np.eye(dim)
     zero = np.zeros((dim, dim))
     A = np.block([[eye, dt * eye], [zero, eye]])
@@ -99,9 +97,7 @@ def lqt_track(
         raise InvalidParameterError(f"sigma must be {(T, n, n)}, got {sigma.shape}")
     if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(sigma))):
         raise InvalidParameterError("mu/sigma contain NaN or infinite values")
-    r = check_finite("r", r)
-    if r <= 0:
-        raise InvalidParameterError(f"r must be > 0, got {r}")
+    r = check_positive("r", r)
     try:
         np.linalg.cholesky(sigma)
     except np.linalg.LinAlgError:

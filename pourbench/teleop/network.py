@@ -39,9 +39,7 @@ class NetworkModel:
     """
 
     def __init__(self, outages: Sequence[Outage] = (), dt: float = 0.033) -> None:
-        self.dt = check_finite("dt", dt)
-        if self.dt <= 0:
-            raise InvalidParameterError(f"dt must be > 0, got {dt}")
+        self.dt = check_positive("dt", dt)
         self.outages = tuple(outages)
         for i, o in enumerate(self.outages):
             if not isinstance(o, Outage):
@@ -56,9 +54,7 @@ class DeadlineDetector:
     """Declares a disconnection when no packet arrived for more than ``deadline`` seconds."""
 
     def __init__(self, deadline: float = 0.050) -> None:
-        self.deadline = check_finite("deadline", deadline)
-        if self.deadline <= 0:
-            raise InvalidParameterError(f"deadline must be > 0, got {deadline}")
+        self.deadline = check_positive("deadline", deadline)
         self.last_rx: float | None = None
 
     def packet(self, t: float) -> None:

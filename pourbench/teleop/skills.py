@@ -54,15 +54,12 @@ class Skill:
     Attributes:
         label: skill name.
         model: the fitted HSMM.
-        origin: (D,) mean start point of the demonstrations, metres.
-        mean_path: (T, D) HSMM step-wise mean positions (absolute), metres.
-        trajectory: (M, D) LQT reproduction, one point per HSMM step, metres (``xi_a``).
+        trajectory: (M, D) LQT reproduction, one point per HSMM step, metres (``xi_a``),
+            starting at the demonstrations' mean start point.
     """
 
     label: str
     model: HSMM
-    origin: np.ndarray
-    mean_path: np.ndarray
     trajectory: np.ndarray
 
 
@@ -174,9 +171,7 @@ class SkillLibrary:
         D = origin.size
         x0 = np.concatenate([np.zeros(D), model.mu[0, D:]])
         rep = lqt_track(mu, sigma, r=self.lqt_r, x0=x0)
-        mean_path = mu[:, :D] + origin
-        traj = rep.positions + origin
-        return Skill(label, model, origin, mean_path, traj)
+        return Skill(label, model, rep.positions + origin)
 
     def skill(self, label: str) -> Skill:
         """The skill named ``label``."""
@@ -329,8 +324,7 @@ class SkillLibrary:
             )
         prepared = _check_demos(demos)
         for label in prepared:
-            if label not in self.skills:
-                raise UnknownNameError("skill", label, self.skills)
+            self.skill(label)  # UnknownNameError for a label that is not a skill
         try:
             fr = [check_finite("fractions", f, minimum=0.0) for f in fractions]
         except TypeError as exc:

@@ -73,10 +73,7 @@ def plan_chomp(
     q_start, q_goal, safety_distance = check_endpoints(kin, q_start, q_goal, safety_distance)
     obstacles = check_obstacles(obstacles)
     T = c.waypoints - 2
-    K = np.zeros((T + 1, T))
-    for i in range(T):
-        K[i, i] = 1.0
-        K[i + 1, i] = -1.0
+    K = np.eye(T + 1, T) - np.eye(T + 1, T, k=-1)  # finite-difference velocities
     A = K.T @ K
     e = np.zeros((T + 1, kin.n))
     e[0] = -q_start

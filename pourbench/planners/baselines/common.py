@@ -84,9 +84,4 @@ def check_endpoints(
 def second_difference_matrix(T: int) -> np.ndarray:
     """(T + 2, T) finite-difference acceleration operator on T interior waypoints (the two
     fixed end points enter through a separate offset)."""
-    A = np.zeros((T + 2, T))
-    for i in range(T):
-        A[i, i] += 1.0
-        A[i + 1, i] += -2.0
-        A[i + 2, i] += 1.0
-    return A
+    return np.eye(T + 2, T) - 2.0 * np.eye(T + 2, T, k=-1) + np.eye(T + 2, T, k=-2)

@@ -56,7 +56,7 @@ def plan_ompl(
     """
     if planner not in OMPL_PLANNERS:
         raise UnknownNameError("planner", planner, OMPL_PLANNERS)
-    check_endpoints(kin, q_start, q_goal, safety_distance)
+    q_start, q_goal, _ = check_endpoints(kin, q_start, q_goal, safety_distance)
     check_positive("time_limit", time_limit)
     check_positive("span", span)
     if not check_positive("resolution", resolution) < 1.0:  # OMPL wants a fraction in (0, 1)
@@ -73,8 +73,6 @@ def plan_ompl(
         ou.RNG.setSeed(int(seed) + 1)
         _SEEDED = True
     n = kin.n
-    q_start = np.asarray(q_start, float)
-    q_goal = np.asarray(q_goal, float)
     lo = np.where(np.isfinite(kin.lower), kin.lower, np.minimum(q_start, q_goal) - span)
     hi = np.where(np.isfinite(kin.upper), kin.upper, np.maximum(q_start, q_goal) + span)
     # IK and path ends may sit a hair outside a joint limit; OMPL rejects out-of-bounds states.

@@ -111,10 +111,8 @@ def plan_stomp(
         if sd_min >= safety_distance + 0.25 * c.margin:
             break
         eps = c.noise_std * np.einsum("tk,rkn->rtn", L, rng.standard_normal((c.rollouts, T, n)))
-        S = np.zeros((c.rollouts, T))
-        if obstacles:  # all rollouts in one batched kinematics + distance call
-            batch = (theta[None] + eps).reshape(-1, n)
-            S = _waypoint_costs(kin, obstacles, batch, threshold)[0].reshape(c.rollouts, T)
+        batch = (theta[None] + eps).reshape(-1, n)  # all rollouts in one batched call
+        S = _waypoint_costs(kin, obstacles, batch, threshold)[0].reshape(c.rollouts, T)
         S += c.smooth_weight * np.einsum("rtn,tk,rkn->rt", eps, R, eps) / n
         lo, hi = S.min(axis=0), S.max(axis=0)
         P = np.exp(-c.h * (S - lo) / np.maximum(hi - lo, 1e-12))
