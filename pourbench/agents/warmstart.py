@@ -28,8 +28,7 @@ import numpy as np
 from pourbench.errors import check_int
 
 EPISODES_PER_BATCH = 4
-"""Episodes in one gradient step of a recurrent policy's fit: about 8 times the steps of
-whole rollouts, 8 worlds a step, which were too few to fit the PD (`docs/training.md`)."""
+"""Episodes in one gradient step of a recurrent policy's fit (why: `docs/training.md`)."""
 
 
 @dataclass(frozen=True)

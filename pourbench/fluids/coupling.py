@@ -95,7 +95,7 @@ class MujocoCoupling:
                 f"model.opt.timestep={model.opt.timestep} must equal the fluid dt="
                 f"{solver.config.dt}"
             )
-        self.solver, self.model, self.datas = solver, model, datas
+        self.solver, self.model, self.datas = solver, model, list(datas)
         self.bindings: list[_Binding] = []
         self._gathered: _Gather | None = None
         self.slots: dict[tuple[int, int], int] = {}
