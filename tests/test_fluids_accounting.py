@@ -19,14 +19,14 @@ def _tilted(z: float, angle: float, x: float = 0.0) -> np.ndarray:
 
 def _expected(x, poses, shapes, margin):
     """Float64 counts: first container holding the particle, else spilled below the lowest
-    inner bottom, else in flight."""
+    rim, else in flight."""
     free = np.ones(len(x), bool)
     inside = []
     for pose, shape in zip(poses, shapes, strict=True):
         held = shape.contains(inverse_transform_points(pose, x), margin=margin) & free
         inside.append(int(held.sum()))
         free &= ~held
-    level = min(p[2] + s.bottom_z for p, s in zip(poses, shapes, strict=True))
+    level = min(p[2] + s.rim_height for p, s in zip(poses, shapes, strict=True))
     spilled = int((free & (x[:, 2] < level)).sum())
     return inside, spilled, int(free.sum()) - spilled
 
@@ -83,6 +83,24 @@ def test_worlds_not_asked_for_are_not_counted_and_rows_follow_the_order_given() 
     inside, spilled, flight = counter.count(np.array([2, 0]), np.tile(pose, (2, 1, 1)), [[0], [0]])
     assert inside.tolist() == [[11], [5]]
     assert spilled.tolist() == [0, 0] and flight.tolist() == [0, 0]
+
+
+def test_liquid_beside_the_containers_below_the_lowest_rim_is_spilled_however_deep() -> None:
+    """A puddle on the table beside a tray (layers from the table up to just under the tray's
+    rim) is spilled: it can no longer fall into a container; a drop above the rim, beside
+    it, is in flight. The lowest rim is the tray's, not the raised cup's."""
+    tray, cup = BoxShell(0.1, 0.1, 0.03, 0.004), BoxShell(0.03, 0.02, 0.05, 0.003)
+    s = PBFSolver(1)
+    poses = np.array([_tilted(0.2, 0.0), _tilted(0.0, 0.0)])
+    s.add_container(0, cup, pose=poses[0])
+    s.add_container(0, tray, pose=poses[1])
+    d = s.config.spacing
+    layers = np.arange(0.5 * d, tray.rim_height, d)  # resting on the table at z = 0
+    puddle = np.stack([np.full(len(layers), 0.15), np.zeros(len(layers)), layers], 1)
+    s.add_particles(0, [*puddle, [0.15, 0.0, tray.rim_height + d]])
+    inside, spilled, flight = LiquidCounter(s, [cup, tray], 0.0).count([0], poses[None], [[0, 1]])
+    assert len(layers) >= 4 and inside.sum() == 0
+    assert (spilled[0], flight[0]) == (len(layers), 1)
 
 
 def test_a_nan_particle_counts_in_flight() -> None:

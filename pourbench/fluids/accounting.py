@@ -5,7 +5,7 @@ Only the per-world counts come back to the host (one read of ``rows × (k + 2)``
 so an environment step on CUDA reads no particle data back to measure where its liquid is.
 The rules are :mod:`pourbench.fluids.metrics`': a particle counts in the first container (in
 ``k`` order) whose cavity holds it, up to ``margin`` above the rim; otherwise it is spilled
-below the lowest inner bottom of its world's containers and in flight above it. The cavity
+below the lowest rim of its world's containers and in flight above it. The cavity
 tests are :meth:`RevolvedShell.contains` and :meth:`BoxShell.contains` written as Warp
 functions; they run in float32 on the particles' float32 positions, so a particle within
 about a micrometre of a cavity's boundary may count on the other side of it than the float64
@@ -127,7 +127,7 @@ class LiquidCounter:
         self._counts = wp.array(sizes, dtype=wp.int32, device=dev)
         flat = np.concatenate([p for _, p in kinds] + [np.zeros(1, np.float32)])
         self._params = wp.array(flat, dtype=float, device=dev)
-        self._bottom_z = np.array([s.bottom_z for s in shapes], float)
+        self._rim_z = np.array([s.rim_height for s in shapes], float)
         self._buffers: dict[tuple[int, int], tuple[wp.array, ...]] = {}
 
     def count(
@@ -160,7 +160,7 @@ class LiquidCounter:
         shape_arr.assign(np.asarray(shape_index, np.int32))
         level = np.full(rows, np.inf)
         if k:
-            level = (np.asarray(poses)[:, :, 2] + self._bottom_z[shape_index]).min(1)
+            level = (np.asarray(poses)[:, :, 2] + self._rim_z[shape_index]).min(1)
         spill.assign(level.astype(np.float32))
         out.zero_()
         x, world = s.particle_arrays()

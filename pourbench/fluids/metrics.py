@@ -2,8 +2,10 @@
 
 A particle is *inside* a container when it lies in the container's cavity (its local frame,
 up to one particle spacing above the rim); *spilled* when it is in no container and below
-the lowest container's inner bottom (on the table or the floor); *in flight* otherwise
-(a stream, or drops on a rim). At rest after a pour, inside + spilled = total.
+the lowest container's rim (it can no longer fall into one: it runs down a wall, falls beside
+the containers or lies on the table, however deep the puddle); *in flight* otherwise (a
+stream above the rims, or drops on a rim). At rest after a pour, inside + spilled = total.
+The rim heights are the containers' upright ones, at their poses' heights.
 """
 
 from __future__ import annotations
