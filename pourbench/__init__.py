@@ -60,16 +60,11 @@ def register_envs() -> None:
             id=POUR_ID,
             entry_point="pourbench.envs.pour_v0:PourEnv",
             vector_entry_point="pourbench.envs.vector:PourVectorEnv",
-            # Gymnasium 1.4's passive checker never records the data of a first reset that
-            # raised (a rejected option), and then fails every later step of the environment
-            # with a TypeError. The environment passes Gymnasium's full check_env in the tests.
-            disable_env_checker=True,
         )
     if ROBOT_POUR_ID not in registry:
         register(
             id=ROBOT_POUR_ID,
             entry_point="pourbench.envs.robot_pour:RobotPourEnv",
-            disable_env_checker=True,  # as Pour-v0 (a rejected first reset)
         )
 
 

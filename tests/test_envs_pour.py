@@ -14,7 +14,7 @@ from gymnasium.error import ResetNeeded
 from gymnasium.utils.env_checker import check_env
 from world_probes import poison, world_steps
 
-import pourbench  # noqa: F401  (registers the ids)
+from pourbench import POUR_ID, ROBOT_POUR_ID
 from pourbench.containers import container_names
 from pourbench.envs.action_handler import ActionLimits
 from pourbench.envs.core import PourBatch, PourConfig
@@ -114,6 +114,24 @@ def test_no_particle_crosses_a_wall_and_every_gram_is_placed() -> None:
         assert total == pytest.approx(info["initial_g"], rel=0.005)
         assert not trunc
     assert info["poured_g"] > 30.0  # the liquid did move into the receiving container
+
+
+def test_liquid_poured_onto_the_table_is_spilled_and_the_episode_ends() -> None:
+    """Free mode, the cup tipped away from the tray for 30 steps and righted for 30: all the
+    liquid lands on the table, where it counts as spilled, not in flight, so the episode ends
+    as the cup comes upright with the stream stopped (before settle_time's fallback)."""
+    env = PourEnv(liquid="water", action_mode="free", max_steps=120)
+    env.reset(seed=1)
+    for t in range(120):
+        _, _, term, trunc, info = env.step(np.array([1.0 if t < 30 else -1.0, 0.0]))
+        if term or trunc:
+            break
+    assert term and not trunc and info["tilt"] == pytest.approx(0.0, abs=0.05)
+    assert info["poured_g"] == 0.0 and info["remaining_g"] == 0.0
+    assert info["spilled_g"] == pytest.approx(info["initial_g"], rel=0.005)
+    assert info["in_flight_g"] < env.unwrapped.config.stream_stop_g
+    fallback = 60 + env.unwrapped.config.settle_time / env.unwrapped.batch.control_dt
+    assert t + 1 < fallback  # upright after 60 steps; settle_time would end it at `fallback`
 
 
 def test_the_pouring_container_tilts_about_its_rim() -> None:
@@ -237,6 +255,11 @@ def test_bad_input() -> None:
         env.reset(options={"start": (0.1, 0.0)})
     with pytest.raises(ValueError, match=r"shape \(2,\)"):
         env.step([0.0])
+    for action in (["1", "0.5"], [True, False], np.array([1 + 2j, 0]), np.array([1.0, None])):
+        with pytest.raises(InvalidParameterError, match="actions must be"):
+            env.step(action)  # refused, not converted
+    with pytest.raises(InvalidParameterError, match="start must be three finite numbers"):
+        env.reset(options={"start": ["-0.25", "0", "0.1"]})
     venv = PourVectorEnv(2)
     venv.reset(seed=0)
     with pytest.raises(ValueError, match="finite"):
@@ -302,9 +325,22 @@ def test_a_refused_reset_leaves_the_worlds_generator_as_it_was() -> None:
         if refuse:
             with pytest.raises(InvalidParameterError, match="off the table"):
                 env.reset(options={"start": (100.0, 0.0, 0.1)})
+            # nor does a seeded one: the env keeps its seed and its own generator
+            state = env.np_random.bit_generator.state
+            with pytest.raises(UnknownNameError, match="lava"):
+                env.reset(seed=99, options={"liquid": "lava"})
+            assert env.np_random_seed == 3 and env.np_random.bit_generator.state == state
         obs, info = env.reset()
         episodes.append((obs.tolist(), info["target_g"], info["initial_g"]))
     assert episodes[0] == episodes[1]
+
+
+@pytest.mark.parametrize("seed", [True, -1, 2.0])
+def test_a_seed_that_is_not_a_whole_number_from_zero_is_refused_as_by_the_vector_env(seed) -> None:
+    with pytest.raises(InvalidParameterError, match="seed"):
+        PourEnv().reset(seed=seed)
+    with pytest.raises(InvalidParameterError, match="seed"):
+        PourVectorEnv(1).reset(seed=seed)
 
 
 def test_stepping_outside_an_episode_is_refused_and_changes_nothing() -> None:
@@ -327,15 +363,22 @@ def test_stepping_outside_an_episode_is_refused_and_changes_nothing() -> None:
         PourVectorEnv(2).step(np.zeros((2, 2)))
 
 
-def test_a_rejected_first_reset_leaves_the_made_env_usable() -> None:
-    # Gymnasium's passive checker broke every later step after a first reset that raised
-    env = gym.make("pourbench/Pour-v0", max_steps=3)
+@pytest.mark.parametrize(("env_id", "start"), [(POUR_ID, ABOVE), (ROBOT_POUR_ID, None)])
+def test_a_rejected_first_reset_leaves_the_made_env_usable(env_id: str, start) -> None:
+    """gym.make wraps the env in Gymnasium's passive env checker, and a first reset refused
+    for its options loses nothing: the next reset and step work. (Gymnasium 1.4.0's checker
+    fails every later step after a first reset that raised; constraints.txt keeps 1.3.0.)"""
+    from gymnasium.wrappers import PassiveEnvChecker
+
+    env = gym.make(env_id, max_steps=3)
+    assert isinstance(env.env, PassiveEnvChecker)
     with pytest.raises(ValueError, match="unknown liquid"):
         env.reset(options={"liquid": "lava"})
-    env.reset(seed=0, options={"start": ABOVE})
+    env.reset(seed=0, options={"start": start})
     obs, rew, term, trunc, info = env.step(np.zeros(2))
     assert obs.shape == (12,) and np.isfinite(rew) and not (term or trunc)
     assert info["target_g"] > 0
+    env.close()
 
 
 def test_vector_autoreset_rollout() -> None:
@@ -358,6 +401,9 @@ def test_vector_autoreset_rollout() -> None:
     assert trunc.all()
     assert info["_final_obs"].all() and info["final_obs"][0].shape == (12,)
     assert info["final_info"]["target_g"][0] == pytest.approx(info["final_obs"][0][8], abs=1e-3)
+    # the info beside the new episode's observation is the new episode's (Gymnasium's rule)
+    np.testing.assert_allclose(info["target_g"], obs[:, 8], atol=1e-3)
+    assert not np.allclose(info["target_g"], info["final_info"]["target_g"])
 
 
 def test_set_lesson_single_and_vector() -> None:
@@ -606,16 +652,38 @@ def test_drawn_containers_hold_the_asked_target() -> None:
         ({"control_hz": 0.0}, "control_hz"),
         ({"control_hz": float("nan")}, "control_hz"),
         ({"control_hz": 1000.0}, "control_hz"),
+        ({"control_hz": 50.0}, "rates near it: 40, 60"),
         ({"max_steps": 0}, "max_steps"),
         ({"sensor_noise_n": -1.0}, "sensor_noise_n"),
         ({"sensor_cutoff_hz": 60.0}, "sensor_cutoff_hz"),
         ({"target_range_g": (200.0, 50.0)}, "target_range_g"),
         ({"upright_tilt": 0.5}, "upright_tilt"),
+        ({"start_x": (-5.0, -4.0)}, "start_x"),
+        ({"start_y": (0.0, 0.6)}, "start_y"),
+        ({"start_height": (0.6, 0.7)}, "start_height"),
+        ({"target_range_g": (0.1, 1.0), "liquid": "honey"}, "one particle"),
+        ({"container": "cup_small"}, "cup_small"),
+        ({"limits": {"max_tilt": 1.0}}, r"limits must be ActionLimits\("),
+        ({"reward": {}}, r"reward must be RewardConfig\("),
+        ({"solver": {"spacing": 0.01}}, r"solver must be SolverConfig\("),
+        ({"target_range_g": (50.0, 400.0)}, "target_range_g"),
     ],
 )
 def test_bad_settings_are_refused_when_the_env_is_made(bad: dict, name: str) -> None:
+    """Settings under which some reset without options would be refused (a start off the
+    table, a target or fill no pouring container holds, a target under one particle) are
+    refused when the env is made, so no autoreset can fail mid-run."""
     with pytest.raises(ValueError, match=name):
         PourEnv(**bad)
+
+
+def test_a_small_container_pours_its_own_range_at_every_seed() -> None:
+    """cup_small (118 g of the lightest curriculum liquid) with ranges it holds: every
+    drawn reset starts."""
+    env = PourEnv(container="cup_small", target_range_g=(20.0, 60.0), extra_range_g=(10.0, 40.0))
+    for seed in range(30):
+        _, info = env.reset(seed=seed)
+        assert 20.0 <= info["target_g"] <= 60.0 and info["container"] == "cup_small"
 
 
 def hold_filled(container_set: str, names: tuple[str, ...], liquids: tuple[str, ...]) -> None:
@@ -684,3 +752,29 @@ def test_the_denser_reward_charges_the_final_error_at_the_step_limit() -> None:
         rewards.append(r)
     assert rewards[0] == pytest.approx(-1.0 / 3.0)
     assert rewards[1] == pytest.approx(-1.0 / 3.0 - 0.02 * 50.0)
+
+
+def test_reset_options_made_directly_are_checked_like_a_dict() -> None:
+    """A ResetOptions built by hand holds checked values as one parsed from a dict does."""
+    from pourbench.envs.options import ResetOptions
+
+    assert ResetOptions(liquid="water").liquid == liquid_profile("water")
+    assert ResetOptions.parse({"liquid": "water"}) == ResetOptions(liquid="water")
+    with pytest.raises(InvalidParameterError, match="initial_g must be finite"):
+        ResetOptions(initial_g=float("nan"))
+    with pytest.raises(UnknownNameError, match="lava"):
+        ResetOptions(liquid="lava")
+    env = PourEnv(liquid="water")
+    _, info = env.reset(seed=0, options=ResetOptions(target_g=80.0, initial_g=120.0))
+    assert info["target_g"] == 80.0
+
+
+def test_an_initial_amount_alone_draws_a_target_it_holds() -> None:
+    """reset(options={"initial_g": x}) draws the target from the config's range up to x, at
+    every seed; an x below the range's least target is refused."""
+    env = PourEnv(liquid="water")
+    for seed in range(6):
+        _, info = env.reset(seed=seed, options={"initial_g": 120.0})
+        assert 50.0 <= info["target_g"] <= 120.0
+    with pytest.raises(InvalidParameterError, match="give target_g too"):
+        env.reset(seed=0, options={"initial_g": 30.0})

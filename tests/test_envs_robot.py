@@ -38,6 +38,9 @@ def test_made_through_gymnasium_with_pour_v0_spaces() -> None:
     assert obs.shape == (12,) and obs.dtype == np.float32
     assert env.observation_space.contains(obs)
     assert info["collided"] is False and info["planner_failed"] is False
+    _, _, _, _, step_info = env.step(np.zeros(2))
+    assert list(info) == list(step_info)  # the reset's info has a step's keys, in order
+    assert info["joint_velocity"].shape == step_info["joint_velocity"].shape
 
 
 @pytest.mark.parametrize(("robot", "planner"), [("movo", "nmpc"), ("panda", "mink")])
@@ -320,3 +323,13 @@ def test_a_robot_pour_is_recorded_for_rerun(tmp_path) -> None:
     assert frames[f"/plots/joint_velocity/{joints[0]}/commanded"] == 3
     moved = [e for e in frames if e.startswith("/world/robot/")]
     assert geoms > 20 and len(moved) == geoms and all(frames[e] == 4 for e in moved)
+
+
+@pytest.mark.parametrize(
+    ("hz", "match"), [(200.0, "above the liquid solver's rate"), (50.0, "near")]
+)
+def test_a_control_rate_the_solver_cannot_run_is_refused(hz: float, match: str) -> None:
+    """PourRobot-v0 takes the same control rates as Pour-v0: whole numbers of solver steps."""
+    with pytest.raises(InvalidParameterError, match=match):
+        RobotPourEnv(control_hz=hz)
+    assert RobotPourEnv(control_hz=20.0).metadata["render_fps"] == 20.0

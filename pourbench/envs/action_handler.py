@@ -48,13 +48,17 @@ def as_actions(actions: object, n: int | None = None) -> np.ndarray:
     """``actions`` as an (n, 2) float array of (tilt rate, approach rate) rows.
 
     Raises:
-        InvalidParameterError: the actions do not hold two numbers a world (``n`` worlds when
-            given), or hold NaN or infinite values.
+        InvalidParameterError: the actions do not hold two real numbers a world (``n`` worlds
+            when given; booleans, strings and complex numbers are refused, not converted), or
+            hold NaN or infinite values.
     """
     try:
-        a = np.asarray(actions, dtype=float)
+        a = np.asarray(actions)
     except (TypeError, ValueError) as exc:
         raise InvalidParameterError(f"actions must be numbers, got {actions!r}") from exc
+    if a.dtype.kind not in "fiu":
+        raise InvalidParameterError(f"actions must be real numbers, got {actions!r}")
+    a = a.astype(float, copy=False)
     rows = a.size // 2 if n is None else n
     # n worlds' actions come as (n, 2); a flat (2 n,) vector is refused for n > 1, since
     # which numbers belong to which world would be a guess

@@ -102,8 +102,16 @@ def draw_amounts(
     checked against one particle's mass (at ``spacing``, m) and 85 % of the pouring
     container's ``capacity_g`` for ``liquid``."""
     target = opts.target_g
-    if target is None:
-        target = float(rng.uniform(*cfg.target_range_g))
+    if target is None:  # drawn, at most the initial amount asked for
+        low, high = cfg.target_range_g
+        if opts.initial_g is not None:
+            if opts.initial_g < low:
+                raise InvalidParameterError(
+                    f"initial_g={opts.initial_g:g} g is less than the least target drawn "
+                    f"(target_range_g={cfg.target_range_g!r}); give target_g too"
+                )
+            high = min(high, opts.initial_g)
+        target = float(rng.uniform(low, high))
     particle_g = particle_grams(liquid, spacing)
     if target < particle_g:
         raise InvalidParameterError(
@@ -130,6 +138,28 @@ def draw_amounts(
 CONTAINER_SETS: tuple[str, ...] = ("training", "novel")
 OBS_SIZE = 12
 _PARK = np.array([0.0, 0.0, -5.0])  # unused pouring containers wait here
+
+
+def control_substeps(control_hz: float, dt: float) -> int:
+    """Solver steps (of ``dt`` s) an environment step at ``control_hz`` takes.
+
+    Raises:
+        InvalidParameterError: ``control_hz`` is above the solver's rate, or a whole number of
+            solver steps would run it more than 1 % away from the rate asked for.
+    """
+    if control_hz * dt > 1.0 + 1e-9:
+        raise InvalidParameterError(
+            f"control_hz={control_hz:g} is above the liquid solver's rate ({1.0 / dt:g} Hz): "
+            "an environment step is at least one solver step"
+        )
+    substeps = round(1.0 / (control_hz * dt))
+    if abs(1.0 / (substeps * dt) - control_hz) > 0.01 * control_hz:
+        near = sorted({1.0 / (k * dt) for k in (max(1, substeps - 1), substeps, substeps + 1)})
+        raise InvalidParameterError(
+            f"control_hz={control_hz:g} is not a whole number of the liquid solver's "
+            f"{1.0 / dt:g} Hz steps; rates near it: {', '.join(f'{r:.4g}' for r in near)} Hz"
+        )
+    return substeps
 
 
 def default_solver_config() -> SolverConfig:
@@ -219,6 +249,15 @@ class PourConfig:
             refuse_container(self.container, ())
         if self.liquid is not None:
             known_liquid(self.liquid)
+        for name, kind in (("limits", ActionLimits), ("reward", RewardConfig)):
+            if not isinstance(getattr(self, name), kind):
+                raise InvalidParameterError(
+                    f"{name} must be {kind.__name__}(...), got {getattr(self, name)!r}"
+                )
+        if self.solver is not None and not isinstance(self.solver, SolverConfig):
+            raise InvalidParameterError(
+                f"solver must be SolverConfig(...) or None, got {self.solver!r}"
+            )
         if not isinstance(self.rehearse, bool):
             raise InvalidParameterError(f"rehearse must be True or False, got {self.rehearse!r}")
         positive = ("control_hz", "pour_tilt", "upright_tilt", "sensor_rate_hz", "sensor_cutoff_hz")
@@ -250,6 +289,17 @@ class PourConfig:
             ("start_height", None),
         ):
             _check_range(name, getattr(self, name), low)
+        for name, half in (("start_x", TABLE_HALF_XY[0]), ("start_y", TABLE_HALF_XY[1])):
+            if max(abs(v) for v in getattr(self, name)) > half:
+                raise InvalidParameterError(
+                    f"{name}={getattr(self, name)!r} reaches off the table (within {half} m of "
+                    "the receiving container's axis, at the table's centre)"
+                )
+        if not 0.0 <= self.start_height[0] <= self.start_height[1] <= MAX_START_HEIGHT:
+            raise InvalidParameterError(
+                f"start_height={self.start_height!r} must lie within 0-{MAX_START_HEIGHT} m "
+                "above the receiving container's base"
+            )
 
 
 def thesis_observation(
@@ -362,15 +412,11 @@ class PourBatch:
         self.set_lesson(cfg.lesson)
         scfg = cfg.solver or default_solver_config()
         self.solver_config = scfg
-        if cfg.control_hz * scfg.dt > 1.0 + 1e-9:
-            raise InvalidParameterError(
-                f"control_hz={cfg.control_hz:g} is above the liquid solver's rate "
-                f"({1.0 / scfg.dt:g} Hz): an environment step is at least one solver step"
-            )
-        check_memory(self.n, cfg)  # before anything of the worlds is allocated
-        self.substeps = max(1, round(1.0 / (cfg.control_hz * scfg.dt)))
+        self.substeps = control_substeps(cfg.control_hz, scfg.dt)
         self.control_dt = self.substeps * scfg.dt
+        check_memory(self.n, cfg)  # before anything of the worlds is allocated
         self.candidates = pouring_candidates(cfg)
+        self._check_draws()
         # MuJoCo: the first candidate is body "pouring", the others "pouring_<name>"
         scene = build_pour_scene(pouring=self.candidates[0], receiving=cfg.receiving)
         from pourbench.containers import add_container_body
@@ -461,6 +507,37 @@ class PourBatch:
     def set_lesson(self, k: int) -> None:
         """Use curriculum lesson ``k`` for liquids drawn at later resets."""
         self.lesson = check_index("lesson", k, len(self.lessons))
+
+    def _check_draws(self) -> None:
+        """Refuse settings under which a reset without options could be refused: the largest
+        drawn target plus the least extra must fit in some pouring container for the lightest
+        liquid that can be drawn, and the least target must be at least one particle of the
+        heaviest (what :meth:`draw_reset` checks per draw). So an autoreset is never refused."""
+        cfg = self.config
+        if self.default_liquid is not None:
+            lo = hi = self.default_liquid.density
+            what = self.default_liquid.name
+        else:
+            densities = [lesson.ranges["density"] for lesson in self.lessons]
+            lo, hi = min(d[0] for d in densities), max(d[1] for d in densities)
+            what = f"the curriculum's lightest liquid ({lo:g} kg/m^3)"
+        need = cfg.target_range_g[1] + cfg.extra_range_g[0]
+        most = max(self.capacity_g(c, lo) for c in self.candidates)
+        if need > 0.85 * most:
+            raise CapacityError(
+                f"target_range_g's {cfg.target_range_g[1]:g} g plus extra_range_g's "
+                f"{cfg.extra_range_g[0]:g} g is more than any of the pouring containers "
+                f"{list(self.candidates)} holds of {what}: at most {0.85 * most:.0f} g (85 % "
+                "of its capacity); narrow target_range_g/extra_range_g or choose a larger "
+                "container"
+            )
+        particle_g = hi * self.solver_config.spacing**3 * 1e3
+        if cfg.target_range_g[0] < particle_g:
+            raise InvalidParameterError(
+                f"target_range_g starts at {cfg.target_range_g[0]:g} g, less than one particle "
+                f"({particle_g:.3g} g at {hi:g} kg/m^3 and "
+                f"{self.solver_config.spacing * 1e3:g} mm spacing)"
+            )
 
     def _park_all(self, d: mujoco.MjData) -> None:
         for i, c in enumerate(self.candidates):

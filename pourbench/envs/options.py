@@ -47,14 +47,15 @@ class ResetOptions:
     """One episode's choices; each None is drawn from the env's config at reset.
 
     Attributes:
-        liquid: the liquid (None: the config's liquid, or the curriculum's draw).
+        liquid: the liquid, a profile or a name (made its profile); None: the config's
+            liquid, or the curriculum's draw.
         container: the pouring container's name.
         target_g: the amount to pour (g, > 0).
         initial_g: the amount filled in (g, at least ``target_g``).
         start: the pouring container's base relative to the receiving container's (3,; m).
     """
 
-    liquid: LiquidProfile | None = None
+    liquid: LiquidProfile | str | None = None
     container: str | None = None
     target_g: float | None = None
     initial_g: float | None = None
@@ -62,9 +63,28 @@ class ResetOptions:
 
     KEYS: ClassVar[tuple[str, ...]] = ("container", "initial_g", "liquid", "start", "target_g")
 
+    def __post_init__(self) -> None:
+        """Check and convert the fields (a liquid name becomes its profile), so that every
+        instance, however made, holds checked values.
+
+        Raises:
+            InvalidParameterError: a malformed value.
+            UnknownNameError: an unknown liquid.
+        """
+        liquid, container, start = self.liquid, self.container, self.start
+        if container is not None and not isinstance(container, str):
+            raise InvalidParameterError(f"container must be a name, got {container!r}")
+        set_ = object.__setattr__
+        set_(self, "liquid", None if liquid is None else known_liquid(liquid))
+        if self.target_g is not None:
+            set_(self, "target_g", check_positive("target_g", self.target_g))
+        if self.initial_g is not None:
+            set_(self, "initial_g", check_finite("initial_g", self.initial_g))
+        set_(self, "start", None if start is None else _start(start))
+
     @classmethod
     def parse(cls, options: Mapping | ResetOptions | None) -> ResetOptions:
-        """``options`` as checked fields.
+        """``options`` (a dict of :attr:`KEYS`) as checked fields.
 
         Raises:
             InvalidParameterError: not a mapping, an unknown key, or a malformed value.
@@ -79,24 +99,17 @@ class ResetOptions:
         unknown = sorted(set(options) - set(cls.KEYS))
         if unknown:
             raise InvalidParameterError(f"unknown reset options {unknown}; known: {list(cls.KEYS)}")
-        liquid, container = options.get("liquid"), options.get("container")
-        target, initial, start = (options.get(k) for k in ("target_g", "initial_g", "start"))
-        if container is not None and not isinstance(container, str):
-            raise InvalidParameterError(f"container must be a name, got {container!r}")
-        return cls(
-            liquid=None if liquid is None else known_liquid(liquid),
-            container=container,
-            target_g=None if target is None else check_positive("target_g", target),
-            initial_g=None if initial is None else check_finite("initial_g", initial),
-            start=None if start is None else _start(start),
-        )
+        return cls(**options)
 
 
 def _start(value: object) -> np.ndarray:
     try:
-        start = np.asarray(value, float)
+        start = np.asarray(value)
     except (TypeError, ValueError):
         start = np.full(1, np.nan)  # refused just below
+    if start.dtype.kind not in "fiu":  # strings, booleans: refused, not converted
+        start = np.full(1, np.nan)
+    start = start.astype(float)
     if start.shape != (3,) or not np.all(np.isfinite(start)):
         raise InvalidParameterError(
             f"start must be three finite numbers (x, y, height of the pouring container's "

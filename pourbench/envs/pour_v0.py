@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 
 from pourbench.envs.core import OBS_BOUND, OBS_SIZE, PourBatch, PourConfig
-from pourbench.errors import InvalidParameterError
+from pourbench.errors import InvalidParameterError, check_int
 
 RENDER_SIZE = (480, 640)  # height, width in pixels
 
@@ -158,8 +158,11 @@ class PourEnv(gym.Env):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None:
+            seed = check_int("seed", seed, minimum=0)
+        draw = self.batch.draw_reset(0, seed, options)  # a refusal changes nothing
         super().reset(seed=seed)
-        self.batch.reset_world(0, seed=seed, options=options)
+        self.batch.apply_reset(0, draw)
         self.batch.flush()
         info = _world_info(self.batch.reset_info(), 0)
         if self._recorder is not None:

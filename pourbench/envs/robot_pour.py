@@ -67,6 +67,7 @@ from pourbench.containers import get_container
 from pourbench.envs.action_handler import as_actions, handle_actions
 from pourbench.envs.core import (
     PourConfig,
+    control_substeps,
     default_solver_config,
     draw_amounts,
     liquid_account,
@@ -249,8 +250,9 @@ class RobotPourEnv(gym.Env):
         self.recv = get_container(cfg.receiving)
         scfg = cfg.solver or default_solver_config()
         self.solver_config = scfg
-        self.substeps = max(1, round(1.0 / (cfg.control_hz * scfg.dt)))
+        self.substeps = control_substeps(cfg.control_hz, scfg.dt)
         self.control_dt = self.substeps * scfg.dt
+        self.metadata = {**self.metadata, "render_fps": cfg.control_hz}
         # planner calls per step: the fewest that divide the substeps and run it at >= 10 Hz
         self.plans = next(
             k
@@ -466,6 +468,13 @@ class RobotPourEnv(gym.Env):
         info.update(collided=False, planner_failed=False, sim_diverged=False, is_success=False)
         info["average_error_g"] = float(self.history.average()[0])
         info["completed_episodes"] = int(self.history.count[0])
+        info.update(  # a step's keys, in its order: the arm starts still, at its target
+            planner_qp_failed=False,
+            pos_error_m=0.0,
+            rot_error_rad=0.0,
+            joint_velocity=np.zeros(len(self.vmax)),
+            force_raw_n=float(self.force_n),
+        )
         if self._recorder is not None:
             self._recorder.log()
         return self._observe(self.history.average()), info

@@ -214,10 +214,11 @@ class PourVectorEnv(VectorEnv):
             final_obs = np.empty(self.num_envs, dtype=object)
             for r, sl in zip(answers, self._slices, strict=True):
                 for k in np.flatnonzero(done[sl]):
-                    final_obs[sl.start + k] = r[5][k]
+                    final_obs[sl.start + k] = r[5][0][k]
+            ended = _concat([r[4] if r[5] is None else r[5][1] for r in answers])
             infos["final_obs"] = final_obs
             infos["_final_obs"] = done.copy()
-            infos["final_info"] = self._info(info, done)
+            infos["final_info"] = self._info(ended, done)
             infos["_final_info"] = done.copy()
         elif not same:
             self._needs_reset = done

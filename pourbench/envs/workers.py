@@ -87,8 +87,9 @@ class WorldGroup:
 
         ``resetting`` worlds (next-step autoreset) hold still and are reset after the step,
         returning their first observation with reward 0. With ``same_step``, worlds whose
-        episode ended are reset now after their last observations are kept as ``final``
-        (None when no world ended; the returned info is the one of the step).
+        episode ended are reset now: the returned observation and info are the new
+        episode's for them, and ``final`` holds the step's observations and info (None when
+        no world ended).
         """
         b = self.batch
         obs, rew, term, trunc, info = b.step(actions, active=~resetting)
@@ -104,11 +105,12 @@ class WorldGroup:
         done = term | trunc
         final = None
         if same_step and done.any():
-            final = obs.copy()
+            final = obs.copy(), dict(info)
             for k in np.flatnonzero(done):
                 b.reset_world(int(k))
             b.flush()
             obs = b.observe()
+            info = {key: np.where(done, v, info[key]) for key, v in b.reset_info().items()}
         return obs, rew, term, trunc, info, final
 
     def set_lesson(self, k: int) -> None:
