@@ -5,29 +5,35 @@ from __future__ import annotations
 
 import os
 import platform
+import shlex
 import subprocess
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
 
-def git_sha() -> str:
-    """Short SHA of HEAD, with ``-dirty`` when the tree has uncommitted changes outside
-    ``leaderboard/`` (so ``bench all`` stamps its later suites clean). For a copy of
-    the source run elsewhere (a tree shipped to a GPU machine, say), ``$POURBENCH_GIT_SHA``
-    names the commit it was copied from and takes precedence."""
+def git_sha(source: str | Path = Path(__file__).parent) -> str:
+    """Short SHA of HEAD of the git repository holding ``source`` (by default this package, so
+    the answer does not depend on the current folder), with ``-dirty`` when that repository
+    has uncommitted changes outside its top-level ``leaderboard/`` (so ``bench all`` stamps
+    its later suites clean); ``"unknown"`` when ``source`` is in no repository or git is
+    missing. For a copy of the source run elsewhere (a tree shipped to a GPU machine, say),
+    ``$POURBENCH_GIT_SHA`` names the commit it was copied from and takes precedence."""
     if os.environ.get("POURBENCH_GIT_SHA"):
         return os.environ["POURBENCH_GIT_SHA"] + " (copied tree)"
+
+    def git(*args: str, where: str | Path) -> str:
+        return subprocess.run(
+            ["git", "-C", str(where), *args], capture_output=True, text=True, check=True
+        ).stdout.strip()
+
     try:
-        sha = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
-        ).stdout.strip()
-        dirty = subprocess.run(  # tables written by an earlier suite of this run don't count
-            ["git", "status", "--porcelain", "--untracked-files=no", "--", ".", ":!leaderboard"],
-            capture_output=True,
-            text=True,
-            check=True,
-        ).stdout.strip()
+        root = git("rev-parse", "--show-toplevel", where=source)
+        sha = git("rev-parse", "--short", "HEAD", where=root)
+        # tables written by an earlier suite of this run don't count
+        dirty = git(
+            "status", "--porcelain", "--untracked-files=no", "--", ".", ":!leaderboard", where=root
+        )
         return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
@@ -60,9 +66,10 @@ def load() -> str:
 
 
 def provenance() -> dict[str, str]:
-    """Command, git SHA, machine, its load and UTC date of this run."""
+    """Command (shell-quoted: ``shlex.split`` gives back the arguments), git SHA, machine, its
+    load and UTC date of this run."""
     return {
-        "command": "pourbench " + " ".join(sys.argv[1:]),
+        "command": shlex.join(["pourbench", *sys.argv[1:]]),
         "git_sha": git_sha(),
         "machine": machine(),
         "load": load(),

@@ -59,6 +59,18 @@ def test_bench_block_holds_its_particles_in_a_shallow_column(n: int) -> None:
     assert np.all(tank.sdf(pts) >= 0.5 * d - 1e-9)  # inside the cavity, half a spacing clear
 
 
+def test_the_neighbour_count_does_not_depend_on_the_time_budget() -> None:
+    """A row's neighbours_mean is read at a fixed step: a run with no time budget (3 timed
+    steps) and one allowed up to 50 timed steps report the same value, so it compares across
+    machines and runs."""
+    from pourbench.bench.fluids import run_case
+
+    short = run_case("cpu", 2_000, budget_s=0.0)
+    long = run_case("cpu", 2_000, budget_s=5.0)
+    assert short["neighbours_mean"] == long["neighbours_mean"]
+    assert 15.0 < short["neighbours_mean"] < 60.0  # an interior particle at rest has about 30
+
+
 def test_device_choice_selects_rows_and_report() -> None:
     from pourbench.bench import _report, env, fluids
 
@@ -91,7 +103,7 @@ def test_git_sha_ignores_tables_but_not_code(tmp_path, monkeypatch) -> None:
     from pourbench.bench._report import git_sha
 
     monkeypatch.delenv("POURBENCH_GIT_SHA", raising=False)
-    monkeypatch.chdir(tmp_path)
+    monkeypatch.chdir(tmp_path)  # for the git commands below
     git = ["git", "-c", "user.name=t", "-c", "user.email=t@t"]
     (tmp_path / "leaderboard").mkdir()
     (tmp_path / "leaderboard" / "fluids.md").write_text("old\n")
@@ -100,11 +112,11 @@ def test_git_sha_ignores_tables_but_not_code(tmp_path, monkeypatch) -> None:
     subprocess.run([*git, "add", "."], check=True)
     subprocess.run([*git, "commit", "-qm", "init"], check=True)
     (tmp_path / "leaderboard" / "fluids.md").write_text("new\n")
-    assert not git_sha().endswith("-dirty")
+    assert not git_sha(tmp_path).endswith("-dirty")
     (tmp_path / "code.py").write_text("x = 2\n")
-    assert git_sha().endswith("-dirty")
+    assert git_sha(tmp_path).endswith("-dirty")
     monkeypatch.setenv("POURBENCH_GIT_SHA", "abc1234")
-    assert git_sha() == "abc1234 (copied tree)"
+    assert git_sha(tmp_path) == "abc1234 (copied tree)"
 
 
 @pytest.mark.parametrize("suite", ["planning", "teleop"])
@@ -182,6 +194,20 @@ def test_a_refused_report_leaves_the_previous_pair(tmp_path, kw, words) -> None:
         write_report(suite, out=out, **args)
     assert _pair(out) == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lb"]
+
+
+@pytest.mark.parametrize("key", ["load", "git_sha", "command", "suite", "rows"])
+def test_extra_may_not_overwrite_the_reports_own_fields(tmp_path, key) -> None:
+    """An ``extra`` field named as a provenance field (or ``suite`` / ``rows``) would make the
+    JSON disagree with the markdown: it is refused before anything is written."""
+    from pourbench.bench._report import STAMP_KEYS, write_report
+    from pourbench.errors import InvalidParameterError
+    from pourbench.provenance import provenance
+
+    assert set(provenance()) <= set(STAMP_KEYS)
+    with pytest.raises(InvalidParameterError, match=f"extra must not set .*'{key}'"):
+        write_report("s", [{"a": 1}], out=tmp_path / "lb", title="t", body_md="b", extra={key: "x"})
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_report_whose_markdown_path_is_a_folder_keeps_its_json(tmp_path) -> None:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import subprocess
 import sys
 
@@ -34,3 +36,45 @@ def test_quick_bench_prints_one_json_object(tmp_path) -> None:
         for m in ("none", "standard", "skill_cpd")
     }
     assert mean["skill_cpd"] < mean["standard"] < mean["none"]
+
+
+def _cores_and_threads() -> tuple[set[int], list[tuple[str, int]]]:
+    from threadpoolctl import threadpool_info
+
+    return os.sched_getaffinity(0), [(m["filepath"], m["num_threads"]) for m in threadpool_info()]
+
+
+@pytest.mark.parametrize("fails", [False, True])
+def test_the_suite_gives_its_cores_back(monkeypatch, request, fails) -> None:
+    """The suite runs on one CPU with BLAS / OpenMP on one thread, and afterwards (also when
+    it fails) the process has its CPUs and thread limits back, so the suites ``bench all``
+    runs after it, and their workers, are not held to one core."""
+    from threadpoolctl import threadpool_limits
+
+    from pourbench.bench import teleop
+
+    if not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2:
+        pytest.skip("needs a process that may run on two CPUs")
+    allowed = os.sched_getaffinity(0)
+    request.addfinalizer(lambda: os.sched_setaffinity(0, allowed))  # should this test fail
+    during = []
+
+    def body(args, pinned):
+        during.append(_cores_and_threads())
+        if fails:
+            raise RuntimeError("the suite failed")
+        return 0
+
+    monkeypatch.setattr(teleop, "_run", body)
+    with threadpool_limits(2):  # a limit other than the suite's
+        before = _cores_and_threads()
+        assert any(n == 2 for _, n in before[1]), "no BLAS / OpenMP library loaded"
+        if fails:
+            with pytest.raises(RuntimeError, match="the suite failed"):
+                teleop.run(argparse.Namespace())
+        else:
+            assert teleop.run(argparse.Namespace()) == 0
+        after = _cores_and_threads()
+    ((cpus, threads),) = during
+    assert len(cpus) == 1 and all(n == 1 for _, n in threads)
+    assert after == before, "the suite kept this process on one core"

@@ -5,7 +5,8 @@ A job is a tuple of plain values, and its result depends on nothing else: it pou
 fresh env of its own, with seeds it names. So a job may run anywhere (in this process, in one
 process per core, or on Ray workers with ``--ray``) and the tables come out the same.
 Each result is appended as it finishes to a JSON-lines log, keyed by the git SHA at the
-start, so a run that stops resumes where it was.
+start, so a run that stops resumes where it was (a line it was writing when it stopped is
+dropped, and that job runs again).
 
 Ray is optional (the ``ray`` extra). ``ray_address="local"`` starts a Ray on this machine's
 cores for the run; any other address joins that cluster, whose workers must have this
@@ -36,16 +37,41 @@ def job_key(sha: str, job: Job) -> str:
     return json.dumps([sha, *job])
 
 
-def load_log(path: Path) -> dict[str, dict]:
-    """The results logged in ``path`` by key (empty when there is no log yet)."""
+def load_log(path: Path) -> tuple[dict[str, dict], int]:
+    """The results logged in ``path`` by key (empty when there is no log yet), and the size in
+    bytes of the log's complete lines. A last line that does not parse or has no newline (a
+    run stopped while writing it) is left out, with a warning on stderr; its job runs again.
+
+    Raises:
+        PourbenchError: a line before the last one does not parse.
+    """
     if not path.is_file():
-        return {}
-    done = {}
-    for line in path.read_text().splitlines():
+        return {}, 0
+    lines = path.read_bytes().splitlines(keepends=True)
+    last = max((i for i, line in enumerate(lines) if line.strip()), default=-1)
+    done: dict[str, dict] = {}
+    size = 0
+    for i, line in enumerate(lines):
         if line.strip():
-            entry = json.loads(line)
-            done[entry["key"]] = entry["result"]
-    return done
+            try:
+                if i == last and not line.endswith(b"\n"):
+                    raise ValueError("no newline at its end")
+                entry = json.loads(line)
+                done[entry["key"]] = entry["result"]
+            except (ValueError, KeyError, TypeError) as exc:
+                if i < last:
+                    raise PourbenchError(
+                        f"{path}, line {i + 1}, is not a logged result ({exc}); delete that "
+                        "line (its job runs again)"
+                    ) from exc
+                print(
+                    f"warning: {path}: ignoring its incomplete last line (a run stopped while "
+                    "writing it); that job runs again",
+                    file=sys.stderr,
+                )
+                break
+        size += len(line)
+    return done, size
 
 
 def import_ray() -> Any:
@@ -111,7 +137,7 @@ def run_jobs(
     run in this process (``workers`` 1), over ``workers`` fresh processes, or as Ray tasks
     (``ray_address``, one CPU each). ``fn`` is a module-level function, so that other
     processes can import it."""
-    done = load_log(log)
+    done, complete = load_log(log)
     results = {j: done[job_key(sha, j)] for j in jobs if job_key(sha, j) in done}
     todo = [j for j in jobs if j not in results]
     if results:
@@ -119,6 +145,7 @@ def run_jobs(
     log.parent.mkdir(parents=True, exist_ok=True)
     bar = tqdm(total=len(todo), desc=desc, file=sys.stderr)
     with log.open("a") as f:
+        f.truncate(complete)  # an incomplete last line goes: the next result starts a line
         if ray_address is not None and todo:
             finished: Iterator[tuple] = _ray_results(fn, todo, ray_address)
         elif workers <= 1 or len(todo) <= 1:

@@ -64,6 +64,10 @@ def markdown_table(rows: Sequence[dict[str, Any]], columns: Sequence[str] | None
     return "\n".join(lines)
 
 
+STAMP_KEYS = ("suite", "command", "git_sha", "machine", "load", "accelerator", "date", "rows")
+"""The top-level fields :func:`write_report` writes itself (``suite``, the provenance, and
+``rows``); ``extra`` may not set them."""
+
 _STEM = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
 
@@ -115,14 +119,15 @@ def write_report(
         out: folder to write into (created if missing).
         title: markdown heading.
         body_md: the suite's tables and notes in markdown (provenance is added here).
-        extra: more top-level JSON fields.
+        extra: more top-level JSON fields, none of :data:`STAMP_KEYS`.
         git_sha_at_start: the SHA a long run started at (:func:`git_sha` then), stamped in
             place of the SHA at writing, which later commits during the run would move.
 
     Raises:
         InvalidParameterError: a bad suite name, rows that are not a list of dicts, a title
-            or body that is not text, or a value JSON cannot hold; an output path that is a
-            folder (``OutputPathError``).
+            or body that is not text, an ``extra`` field named as one the report writes
+            itself, or a value JSON cannot hold; an output path that is a folder
+            (``OutputPathError``).
     """
     from pourbench.outputs import AtomicOutput, check_output_folder
 
@@ -141,6 +146,11 @@ def write_report(
             raise InvalidParameterError(f"{name} must be a str, got {text!r}")
     if extra is not None and not isinstance(extra, Mapping):
         raise InvalidParameterError(f"extra must be a dict or None, got {extra!r}")
+    clash = sorted(str(k) for k in extra or {} if str(k) in STAMP_KEYS)
+    if clash:
+        raise InvalidParameterError(
+            f"extra must not set the report's own fields {clash} (they are {list(STAMP_KEYS)})"
+        )
     plain_rows = _plain(rows, "rows")
     plain_extra = _plain(dict(extra or {}), "extra")
 

@@ -60,7 +60,8 @@ import os
 import sys
 import time
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -251,14 +252,27 @@ def _run_one(
     }
 
 
-def _limit_to_one_core() -> str:
-    """Pin this process to one CPU (timings are 'on one core'); say what was done."""
-    try:
-        cpu = min(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cpu})
-        return f"pinned to CPU {cpu}"
-    except (AttributeError, OSError):
-        return "not pinned (sched_setaffinity unavailable)"
+@contextmanager
+def _on_one_core() -> Iterator[str]:
+    """Run the block on one core (timings are 'on one core'): BLAS and OpenMP on one thread
+    and this process pinned to one CPU; yields what was done. On leaving, the CPUs and
+    thread limits are those from before, so later work in this process (``bench all``'s
+    next suites) and the workers it starts have every core again."""
+    with threadpool_limits(1):
+        try:
+            before = os.sched_getaffinity(0)
+            os.sched_setaffinity(0, {min(before)})
+        except (AttributeError, OSError):
+            before = None
+        try:
+            yield (
+                f"pinned to CPU {min(before)}"
+                if before
+                else "not pinned (sched_setaffinity unavailable)"
+            )
+        finally:
+            if before:
+                os.sched_setaffinity(0, before)
 
 
 def _time_paths(
@@ -430,10 +444,13 @@ def _confidence_png(path: Path, hists: dict[str, list[int]], bins: list[float]) 
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the suite (see the module docstring); returns 0."""
+    """Run the suite (see the module docstring) on one core; returns 0."""
+    with _on_one_core() as pinned:
+        return _run(args, pinned)
+
+
+def _run(args: argparse.Namespace, pinned: str) -> int:
     quick = bool(getattr(args, "quick", False))
-    threadpool_limits(1)  # BLAS and OpenMP: timings are "on one core"
-    pinned = _limit_to_one_core()
     rng = np.random.default_rng(SEED)
     log = sys.stderr
     t_start = time.perf_counter()
@@ -648,7 +665,7 @@ def run(args: argparse.Namespace) -> int:
             "max": float(regs.max()) if regs.size else None,
         },
         "cpu": pinned,
-        "load": load,
+        "load_during_run": load,
         "open_set": open_set,
     }
     if not getattr(args, "no_write", False):
