@@ -139,6 +139,21 @@ def test_ompl_rrtconnect_path_is_valid(blocked):
     assert _dense_clearance(world, kin, plan.path) > 0.02 - 0.005
 
 
+def test_ompl_same_seed_same_path_in_one_process(blocked, capfd):
+    """The seed applies to every call, not only the process's first; reseeding logs nothing."""
+    kin, q0, q_goal, box = blocked
+    world = _arm7_world([box])
+    args = (world, kin, q0, q_goal, "rrtconnect")
+    a = plan_ompl(*args, safety_distance=0.02, time_limit=5, seed=0)
+    other = plan_ompl(*args, safety_distance=0.02, time_limit=5, seed=7)
+    b = plan_ompl(*args, safety_distance=0.02, time_limit=5, seed=0)
+    assert a.success and b.success and other.success
+    assert a.path.shape == b.path.shape and np.array_equal(a.path, b.path), (
+        "same seed, different paths"
+    )
+    assert "Random number generation already started" not in capfd.readouterr().err
+
+
 @pytest.mark.parametrize("planner", ["stomp", "chomp"])
 def test_stomp_and_chomp_find_collision_free_paths(blocked, planner):
     kin, q0, q_goal, box = blocked

@@ -13,6 +13,7 @@ from pourbench.planners.distance import (
     Capsule,
     Sphere,
     capsule_obstacle_distances,
+    obstacle_from_mujoco_geom,
     point_box_signed_distance,
 )
 
@@ -161,3 +162,31 @@ def test_non_obstacle_entries_are_refused(bad):
     obs = [Sphere([0, 0, 2], 0.1), bad]
     with pytest.raises(InvalidParameterError, match=r"obstacles\[1\] must be a Sphere, Box or"):
         capsule_obstacle_distances(np.zeros((1, 3)), np.ones((1, 3)), [0.05], obs)
+
+
+def test_obstacles_copy_the_callers_arrays():
+    """A frozen obstacle does not move with the array it was built from (MjData's geom_xpos,
+    a caller's buffer), and editing that array cannot undo the construction checks."""
+    m = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body pos="0 0 1"><freejoint/>'
+        '<geom type="box" size=".1 .1 .1"/></body></worldbody></mujoco>'
+    )
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    box = obstacle_from_mujoco_geom(int(m.geom_type[0]), d.geom_xpos[0], d.geom_xmat[0],
+                                    m.geom_size[0])  # fmt: skip
+    for _ in range(50):
+        mujoco.mj_step(m, d)  # the body falls
+    assert d.geom_xpos[0, 2] < 0.99
+    np.testing.assert_array_equal(box.center, [0.0, 0.0, 1.0])
+
+    h, R, c, v = np.full(3, 0.1), np.eye(3), np.zeros(3), np.zeros(3)
+    b = Box(c, h, R, v)
+    s = Sphere(c, 0.1, velocity=v)
+    cap = Capsule(c, c + 1.0, 0.1, velocity=v)
+    h[0], R[0, 0], c[:], v[:] = -1.0, 5.0, 7.0, 9.0
+    np.testing.assert_array_equal(b.half_extents, [0.1, 0.1, 0.1])
+    np.testing.assert_array_equal(b.rotation, np.eye(3))
+    for vec in (b.center, b.velocity, s.center, s.velocity, cap.a, cap.velocity):
+        np.testing.assert_array_equal(vec, [0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(cap.b, [1.0, 1.0, 1.0])

@@ -139,6 +139,17 @@ def test_none_term_matches_the_model() -> None:
     np.testing.assert_allclose(open_set_posterior(ll, None, 4, None), np.exp(ll) / np.exp(ll).sum())
 
 
+def test_open_set_posterior_refuses_a_model_without_its_inputs() -> None:
+    ll, model = np.array([-1.0, -2.0]), NoneModel(5, 0.5, 0.0, 1)
+    with pytest.raises(InvalidParameterError, match="before must be 2 log-likelihoods"):
+        open_set_posterior(ll, None, 5, model)
+    with pytest.raises(InvalidParameterError, match="before must be 2 log-likelihoods"):
+        open_set_posterior(ll, np.zeros(3), 5, model)
+    for n in (0, 2.5, None):
+        with pytest.raises(InvalidParameterError, match="n must be"):
+            open_set_posterior(ll, np.zeros(2), n, model)
+
+
 def test_fit_recovers_the_separating_rate() -> None:
     # own skill 2 nats/sample above the impostor: tau lands between the two rates
     rng = np.random.default_rng(0)

@@ -114,6 +114,41 @@ def test_lqt_refuses_covariances_that_are_not_positive_definite() -> None:
         lqt_track(mu, one)
 
 
+# symmetric, every eigenvalue (eigvalsh) > 0, yet numerically singular: Cholesky fails
+_NEARLY_SINGULAR = np.array(
+    [
+        [0.6822680730813434, -0.1246108247674704, -0.3393252684562553, -0.29344310193472756],
+        [-0.1246108247674704, 0.9511290609042113, -0.1330794861468312, -0.11508502563474765],
+        [-0.3393252684562553, -0.1330794861468312, 0.637613887500869, -0.31338575353848425],
+        [-0.29344310193472756, -0.11508502563474765, -0.31338575353848425, 0.7289889785135759],
+    ]
+)
+
+
+def test_lqt_refuses_numerically_singular_covariance_clearly() -> None:
+    """Not positive definite as Cholesky sees it, though eigvalsh finds no eigenvalue <= 0:
+    the same InvalidParameterError naming the step, not a bare StopIteration."""
+    with pytest.raises(np.linalg.LinAlgError):  # the premise of the case
+        np.linalg.cholesky(_NEARLY_SINGULAR)
+    sigma = np.tile(np.eye(4), (3, 1, 1))
+    sigma[1] = _NEARLY_SINGULAR
+    with pytest.raises(InvalidParameterError, match=r"sigma\[1\] is not positive definite"):
+        lqt_track(np.zeros((3, 4)), sigma)
+
+
+def test_lqt_refuses_non_symmetric_covariance() -> None:
+    """Cholesky reads one triangle only: [[1, 10], [0, 1]] would pass as the identity,
+    though its quadratic form is indefinite."""
+    sigma = np.tile(np.eye(2), (5, 1, 1))
+    sigma[2] = [[1.0, 10.0], [0.0, 1.0]]
+    assert np.linalg.eigvalsh(0.5 * (sigma[2] + sigma[2].T)).min() < 0
+    with pytest.raises(InvalidParameterError, match=r"sigma\[2\] is not symmetric"):
+        lqt_track(np.zeros((5, 2)), sigma)
+    sigma[2] = [[1.0, 1e-3], [0.0, 1.0]]  # positive definite, still not a covariance
+    with pytest.raises(InvalidParameterError, match=r"sigma\[2\] is not symmetric"):
+        lqt_track(np.zeros((5, 2)), sigma)
+
+
 @pytest.mark.parametrize("dim", [2.5, True, "2", 0])
 def test_double_integrator_refuses_non_integer_dim(dim) -> None:
     with pytest.raises(InvalidParameterError, match="dim must be"):

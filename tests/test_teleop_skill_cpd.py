@@ -138,6 +138,37 @@ def test_closest_step_window() -> None:
     assert closest_step(np.array([0.0, 0.0]), traj, 100, 5) == 95
 
 
+def test_closest_step_window_before_the_start_searches_the_start() -> None:
+    """``centre ± window`` wholly before index 0 searches the first points, as one wholly
+    past the end searches the last ones (not the far end of the trajectory)."""
+    traj = np.c_[np.linspace(0, 1, 101), np.zeros(101)]
+    assert closest_step(np.array([0.0, 0.0]), traj, -100, 2) == 0
+    assert closest_step(np.array([1.0, 0.0]), traj, -3, 2) == 2  # clipped to [0, 2]
+    assert closest_step(np.array([0.0, 0.0]), traj, 500, 2) == 98
+
+
+def test_closest_step_refuses_non_finite_traj_outside_the_window() -> None:
+    traj = np.c_[np.linspace(0, 1, 50), np.zeros(50)]
+    traj[40] = np.nan
+    with pytest.raises(InvalidParameterError, match="traj contains NaN"):
+        closest_step(np.array([0.06, 0.0]), traj, 3, 2)
+
+
+def test_register_skill_refuses_non_finite_points_in_every_mode(library) -> None:
+    xa = library.skill("A").trajectory
+    X = xa[:40].copy()
+    X[5] = np.nan
+    ok = xa[:40]
+    for mode in ("standard", "skill_cpd"):
+        cfg = SkillCPDConfig(mode=mode)
+        with pytest.raises(InvalidParameterError, match="X contains NaN"):
+            register_skill(X, xa, xa[39], cfg)
+        bad = xa.copy()
+        bad[-1, 0] = np.inf
+        with pytest.raises(InvalidParameterError, match="xi_a contains NaN or infinite"):
+            register_skill(ok, bad, xa[39], cfg)
+
+
 def test_deadline_detector_and_network() -> None:
     det = DeadlineDetector(0.050)
     assert not det.disconnected(1.0)  # nothing received yet
@@ -193,6 +224,20 @@ def test_malformed_input_raises_value_error(library: SkillLibrary) -> None:
         SkillLibrary(0.006).fit({"A": []})
 
 
+@pytest.mark.parametrize(
+    ("delta_d", "match"),
+    [
+        (np.inf, r"delta_d must be finite, got inf"),
+        (np.nan, r"delta_d must be finite"),
+        ("0.01", r"delta_d must be a number, got '0.01'"),
+        (0.0, r"delta_d must be > 0"),
+    ],
+)
+def test_delta_sample_refuses_bad_delta_d(delta_d, match) -> None:
+    with pytest.raises(InvalidParameterError, match=match):
+        delta_sample(np.zeros((3, 2)), delta_d)
+
+
 def test_invariant_recognition_handles_rotated_and_scaled_operators(library) -> None:
     for L in "ACLS":
         raw = letter_demos(L, 1, start=10)[0].points
@@ -233,7 +278,7 @@ _RNG = np.random.default_rng
         (lambda: SkillCPD(SkillLibrary(0.006)), "no skills"),
         (lambda: closest_step(np.full(2, np.nan), np.zeros((20, 2)), 5, 3), "point"),
         (lambda: closest_step(np.zeros(2), np.zeros((20, 2)), 5, -5), "window must be >= 0"),
-        (lambda: closest_step(np.zeros(2), np.full((20, 2), np.nan), 5, 3), r"NaN .* \[2, 9\)"),
+        (lambda: closest_step(np.zeros(2), np.full((20, 2), np.nan), 5, 3), "traj contains NaN"),
         (lambda: letter_demos("A", -1), "n must be >= 0"),
         (lambda: letter_demos("A", 2.5), "n must be an integer"),
         (lambda: letter_demos("A", 1, seed=1.7), "seed must be an integer"),
@@ -272,6 +317,49 @@ def test_refused_step_changes_nothing(library: SkillLibrary) -> None:
     for k in range(200, 203):
         sa.step(k * DT_S, None)
     assert sa.state == "skill"
+
+
+def test_step_refuses_time_going_back_and_changes_nothing(library: SkillLibrary) -> None:
+    """A clock stepping back would count the path since then over a negative time and
+    inflate the operator's speed (which drives the skill during an outage)."""
+    human = _human()
+    sa = SkillCPD(library)
+    for k in range(30):
+        sa.step(1.0 + k * DT_S, human[k])
+    snap = (sa.state, len(sa.history), sa.detector.last_rx, sa._speed(), sa.position.copy())
+    for p in (human[30], None):
+        with pytest.raises(InvalidParameterError, match=r"t must not go back: 0\.5 s"):
+            sa.step(0.5, p)
+        now = (sa.state, len(sa.history), sa.detector.last_rx, sa._speed(), sa.position)
+        assert now[:4] == snap[:4]
+        np.testing.assert_array_equal(now[4], snap[4])
+    t_last = 1.0 + 29 * DT_S
+    sa.step(t_last, None)  # the same time again is allowed
+    with pytest.raises(InvalidParameterError, match="t must not go back"):
+        sa.step(t_last - 1e-3, None)  # a packet-less step counts as well
+    sa.step(t_last + DT_S, human[30])
+    assert sa._speed() == pytest.approx(snap[3], rel=0.2)
+
+
+def test_a_refitted_library_refuses_to_switch_and_changes_nothing(library) -> None:
+    """Refitting drops the calibrations; an uncalibrated recognition (confidence about 1 for
+    any letter, here Z, not in the library) must not switch to a skill."""
+    import copy
+
+    lib = copy.deepcopy(library)
+    sa = SkillCPD(lib)
+    lib.fit({"A": [d.points for d in letter_demos("A", 4)]})
+    assert lib.calibration() is None
+    human = letter_demos("Z", 1, start=20)[0].points
+    for k in range(100):
+        sa.step(k * DT_S, human[k])
+    sa.step(100 * DT_S, None)  # within the deadline
+    snap = (sa.state, len(sa.history), len(sa.recognitions), list(sa.transitions))
+    for _ in range(2):
+        with pytest.raises(InvalidParameterError, match=r"recognised skill '\w' .*calibrate"):
+            sa.step(101 * DT_S, None)
+        assert (sa.state, len(sa.history), len(sa.recognitions), sa.transitions) == snap
+    assert not sa.registrations and sa.state == "direct"
 
 
 def test_packet_dimension_must_match_the_skills(library: SkillLibrary) -> None:

@@ -27,7 +27,8 @@ _EPS = 1e-12
 
 
 def _vec3(name: str, v: object) -> np.ndarray:
-    a = np.asarray(v, dtype=float).reshape(-1)
+    """``v`` as a new (3,) float array (never the caller's array: obstacles are frozen)."""
+    a = np.array(v, dtype=float).reshape(-1)
     if a.shape != (3,) or not np.all(np.isfinite(a)):
         raise InvalidParameterError(f"{name} must be 3 finite numbers, got {v!r}")
     return a
@@ -64,7 +65,7 @@ class Box:
         if np.any(h <= 0):
             raise InvalidParameterError(f"box half extents must be > 0, got {h}")
         object.__setattr__(self, "half_extents", h)
-        R = np.asarray(self.rotation, dtype=float)
+        R = np.array(self.rotation, dtype=float)  # a copy, as for the vectors
         if R.size != 9:
             raise InvalidParameterError(f"box rotation must be 3x3, got shape {R.shape}")
         R = R.reshape(3, 3)

@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import logsumexp
 
-from pourbench.errors import InvalidParameterError
+from pourbench.errors import InvalidParameterError, check_int
 
 __all__ = [
     "WINDOWS",
@@ -122,13 +122,21 @@ def open_set_posterior(
     Returns:
         (K + 1,) probabilities with "none" last, or (K,) without a model; all zeros when
         every term is ``-inf``.
+
+    Raises:
+        InvalidParameterError: with a ``model``, ``before`` is missing or not K values, or
+            ``n`` is not an integer >= 1.
     """
     ll = np.asarray(logliks, dtype=float)
     if model is None:
         z = ll
     else:
-        assert before is not None
-        m = min(model.window, n)
+        if before is None or np.shape(before) != ll.shape:
+            raise InvalidParameterError(
+                f"with a calibrated model, before must be {ll.size} log-likelihoods "
+                f"(without the last model.window samples), got {before!r}"
+            )
+        m = min(model.window, check_int("n", n, minimum=1))
         z = np.append(ll, _none_term(np.asarray(before, dtype=float), m, model.tau))
     if not np.any(np.isfinite(z)):
         return np.zeros(z.shape)

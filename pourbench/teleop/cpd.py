@@ -478,8 +478,9 @@ def register_nonrigid(
         max_rank: at most this many eigenpairs are computed for ``lowrank`` (>= 1).
         fgt_eps: FGT error per unit weight, in (0, 1).
         normalize: register zero-mean, unit-RMS copies (then denormalise the result).
-        sigma2: initial mixture variance in the input unit squared (e.g. the final variance
-            of a rigid registration that already aligned ``Y``), > 0; default: from the data.
+        sigma2: initial mixture variance in the input unit squared, > 0, used when it is
+            below the one estimated from the data (e.g. the final variance of a rigid
+            registration that already aligned ``Y``); default: the data's.
         max_iter: EM iteration cap (integer >= 1).
         tol: stop when the relative change of sigma^2 falls below this (>= 0).
 

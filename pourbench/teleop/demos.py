@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from pourbench.errors import InvalidParameterError, UnknownNameError, check_int
+from pourbench.errors import InvalidParameterError, UnknownNameError, check_int, check_positive
 
 __all__ = [
     "DT_S",
@@ -323,14 +323,17 @@ def delta_sample(points: np.ndarray, delta_d: float) -> np.ndarray:
 
     Returns:
         (m, D) kept points; the first point is always kept.
+
+    Raises:
+        InvalidParameterError: ``points`` is not a non-empty finite (n, D) array, or
+            ``delta_d`` is not a finite number > 0.
     """
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[0] == 0:
         raise InvalidParameterError(f"points must be a non-empty (n, D) array, got {pts.shape}")
     if not np.all(np.isfinite(pts)):
         raise InvalidParameterError("points contain NaN or infinite coordinates")
-    if not delta_d > 0:
-        raise InvalidParameterError(f"delta_d must be > 0, got {delta_d}")
+    delta_d = check_positive("delta_d", delta_d)
     keep = [0]
     last = pts[0]
     for i in range(1, pts.shape[0]):

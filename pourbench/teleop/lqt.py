@@ -66,6 +66,16 @@ class LQTResult:
         return self.states[:, : self.controls.shape[1]]
 
 
+def _first_not_cholesky(sigma: np.ndarray) -> int:
+    """Index of the first matrix of ``sigma`` (T, n, n) whose Cholesky factorisation fails."""
+    for t in range(sigma.shape[0]):
+        try:
+            np.linalg.cholesky(sigma[t])
+        except np.linalg.LinAlgError:
+            return t
+    return 0  # unreachable: the batched factorisation failed on one of them
+
+
 def lqt_track(
     mu: np.ndarray,
     sigma: np.ndarray,
@@ -85,7 +95,8 @@ def lqt_track(
 
     Raises:
         InvalidParameterError: malformed or non-finite ``mu`` / ``sigma`` / ``x0``, a
-            ``sigma_t`` that is not positive definite (singular or indefinite: ``Q_t`` must
+            ``sigma_t`` that is not symmetric (to a relative 1e-9) or not positive definite
+            as Cholesky sees it (singular, numerically singular or indefinite: ``Q_t`` must
             be its inverse and a valid cost weight), or ``r`` / ``dt`` not finite and > 0.
     """
     mu = np.asarray(mu, dtype=float)
@@ -98,12 +109,20 @@ def lqt_track(
     if not (np.all(np.isfinite(mu)) and np.all(np.isfinite(sigma))):
         raise InvalidParameterError("mu/sigma contain NaN or infinite values")
     r = check_positive("r", r)
+    # a covariance is symmetric (Cholesky would read only its lower triangle)
+    asym = np.abs(sigma - sigma.transpose(0, 2, 1)).max(axis=(1, 2))
+    scale = np.abs(sigma).max(axis=(1, 2))
+    if np.any(asym > 1e-9 * scale):
+        bad = int(np.argmax(asym > 1e-9 * scale))
+        raise InvalidParameterError(
+            f"sigma[{bad}] is not symmetric (largest |sigma - sigma^T| {asym[bad]:.3g})"
+        )
     try:
         np.linalg.cholesky(sigma)
     except np.linalg.LinAlgError:
-        bad = next(t for t in range(T) if np.any(np.linalg.eigvalsh(sigma[t]) <= 0))
         raise InvalidParameterError(
-            f"sigma[{bad}] is not positive definite (singular or indefinite covariance)"
+            f"sigma[{_first_not_cholesky(sigma)}] is not positive definite (singular, "
+            f"numerically singular or indefinite covariance)"
         ) from None
     D = n // 2
     A, B = double_integrator(D, dt)

@@ -5,15 +5,19 @@ one of four states:
 
 * ``direct``: the robot follows the operator (``alpha = 1`` in ``u = alpha u_h +
   (1 - alpha) u_a``, Eq. 5.1). Executed positions are kept in ``xi_h*`` by the Δd rule.
-* ``hold``: packets stopped; the robot holds its last position. It stays here while the
-  deadline (50 ms) has not passed, and for the whole outage when it may not switch (mode
-  ``"none"``, or recognition confidence below ``lambda_minconf``).
+* ``hold``: the deadline (50 ms) passed without a packet and the robot may not switch (mode
+  ``"none"``, or recognition confidence below ``lambda_minconf``): it holds its last
+  position for the rest of the outage. Before the deadline passes a missing packet leaves
+  the state ``direct``, with the robot also held at its last position.
 * ``skill``: deadline missed and the skill recognised with confidence >= ``lambda_minconf``
   (Eq. 5.2): the robot runs the registered skill ``xi_c`` (``alpha = 0``), advancing along
   it at the operator's mean speed measured before the drop. The confidence is the library's
   calibrated open-set probability (:mod:`~pourbench.teleop.confidence`): an operator doing a
   skill the library does not hold gets a low one, and the robot then holds as in ``"none"``.
-  Modes that may switch therefore need a library calibrated for their recognition mode.
+  Modes that may switch therefore need a library calibrated for their recognition mode:
+  :class:`SkillCPD` refuses an uncalibrated one at construction, and a step that would
+  switch on an uncalibrated recognition (the library refitted, which drops its
+  calibrations) raises instead of switching.
 * ``handback``: packets are back; ``alpha`` rises by 0.1 per packet (Eq. 5.10) and the
   command is ``(1 - alpha) xi_c + alpha h_t``; at ``alpha = 1`` the state is ``direct``.
 
@@ -164,6 +168,9 @@ class Registration:
 def closest_step(point: np.ndarray, traj: np.ndarray, centre: int, window: int) -> int:
     """Index of the point of ``traj`` closest to ``point`` within ``centre ± window`` (Eq. 5.9).
 
+    When ``centre ± window`` lies wholly outside ``traj`` (before its start or past its end),
+    the ``window + 1`` points at that end are searched.
+
     Raises:
         InvalidParameterError: ``traj`` is not a non-empty finite (M, D) array, ``point``
             not a finite (D,) vector, ``centre`` not an integer or ``window`` not an
@@ -172,6 +179,8 @@ def closest_step(point: np.ndarray, traj: np.ndarray, centre: int, window: int) 
     traj = np.asarray(traj, dtype=float)
     if traj.ndim != 2 or traj.shape[0] == 0:
         raise InvalidParameterError(f"traj must be a non-empty (M, D) array, got {traj.shape}")
+    if not np.isfinite(traj.sum()) and not np.all(np.isfinite(traj)):
+        raise InvalidParameterError("traj contains NaN or infinite coordinates")
     point = np.asarray(point, dtype=float)
     if point.shape != (traj.shape[1],) or not np.all(np.isfinite(point)):
         raise InvalidParameterError(
@@ -181,11 +190,11 @@ def closest_step(point: np.ndarray, traj: np.ndarray, centre: int, window: int) 
     check_int("window", window, minimum=0)
     lo = max(0, int(centre) - int(window))
     hi = min(traj.shape[0], int(centre) + int(window) + 1)
-    if lo >= hi:
+    if lo >= hi and centre < 0:
+        lo, hi = 0, min(traj.shape[0], int(window) + 1)
+    elif lo >= hi:
         lo, hi = max(0, traj.shape[0] - 1 - int(window)), traj.shape[0]
     d = np.linalg.norm(traj[lo:hi] - point, axis=1)
-    if not np.isfinite(d.sum()):  # only the searched window is read
-        raise InvalidParameterError(f"traj contains NaN or infinite coordinates in [{lo}, {hi})")
     return lo + int(np.argmin(d))
 
 
@@ -244,8 +253,10 @@ def register_skill(
         the template given to non-rigid CPD (``None`` if it did not run).
 
     Raises:
-        InvalidParameterError: ``X`` or ``xi_a`` has fewer than 2 points, their dimensions
-            differ, or (from CPD) a point set is degenerate (all points identical).
+        InvalidParameterError: ``X`` or ``xi_a`` has fewer than 2 points or a NaN or
+            infinite coordinate, their dimensions differ, ``robot`` is not a finite point
+            of that dimension, or (from CPD) a point set is degenerate (all points
+            identical). In every mode.
     """
     X = np.asarray(X, dtype=float)
     xi_a = np.asarray(xi_a, dtype=float)
@@ -255,6 +266,9 @@ def register_skill(
         raise InvalidParameterError(
             f"xi_a must be (M >= 2, {X.shape[1]}) skill points, got {xi_a.shape}"
         )
+    for name, pts in (("X", X), ("xi_a", xi_a)):
+        if not np.all(np.isfinite(pts)):
+            raise InvalidParameterError(f"{name} contains NaN or infinite coordinates")
     # rough disconnection index: skill steps and operator samples are both ~Δd apart
     i0 = min(X.shape[0] - 1, xi_a.shape[0] - 1)
     template = None
@@ -303,7 +317,8 @@ class SkillCPD:
         InvalidParameterError: ``library`` has no skills (not fitted), or the mode may
             switch (``"standard"``, ``"skill_cpd"``) and the library is not calibrated
             (:meth:`~pourbench.teleop.skills.SkillLibrary.calibrate`) for the recognition
-            mode of ``config`` (``invariant_recognition``).
+            mode of ``config`` (``invariant_recognition``). :meth:`step` raises the same
+            if the library loses that calibration later (it is refitted).
     """
 
     def __init__(self, library: SkillLibrary, config: SkillCPDConfig | None = None) -> None:
@@ -336,6 +351,7 @@ class SkillCPD:
         self._path_time = 0.0  # and the time it took, s
         self._last_packet: np.ndarray | None = None
         self._last_packet_t: float | None = None
+        self._last_t: float | None = None  # time of the last completed step, s
 
     # ------------------------------------------------------------------ helpers
     def _set_state(self, t: float, new: str) -> None:
@@ -359,7 +375,11 @@ class SkillCPD:
         )
 
     def _register(self, t: float) -> bool:
-        """Recognise and register (Algorithm 3); False when the skill may not be used."""
+        """Recognise and register (Algorithm 3); False when the skill may not be used.
+
+        Raises InvalidParameterError, having changed nothing, when the recognition is not
+        calibrated (the library was refitted after this machine was built).
+        """
         cfg = self.config
         if cfg.mode == "none" or len(self.history) < 2:
             return False
@@ -367,6 +387,14 @@ class SkillCPD:
         t0 = time.perf_counter()
         rec = self.library.recognize(X, invariant=cfg.invariant_recognition)
         t1 = time.perf_counter()
+        if not rec.calibrated:  # a closed-set confidence is about 1 for any input
+            raise InvalidParameterError(
+                f"recognised skill {rec.label!r} with confidence {rec.confidence:.3g} from a "
+                f"library no longer calibrated for invariant_recognition="
+                f"{cfg.invariant_recognition} (refitting drops calibrations): the switch "
+                f"cannot be gated; call library.calibrate(held_out_demos, "
+                f"invariant={cfg.invariant_recognition})"
+            )
         self.recognitions.append((float(t), rec))
         if rec.confidence < cfg.min_confidence:
             return False
@@ -390,19 +418,27 @@ class SkillCPD:
         """Advance one packet period.
 
         Args:
-            t: time, s (finite).
+            t: time, s (finite, not earlier than the previous step's; equal is allowed).
             packet: the operator's position (D,), metres, or ``None`` when nothing arrived.
 
         Returns:
             The robot's commanded position (D,), metres.
 
         Raises:
-            InvalidParameterError: ``t`` is not finite, or ``packet`` is not a finite,
-                non-empty 1-D position with the skills' (then the robot's) dimension. A
-                refused call changes nothing.
+            InvalidParameterError: ``t`` is not finite or earlier than the previous
+                step's, ``packet`` is not a finite, non-empty 1-D position with the skills'
+                (then the robot's) dimension, ``packet`` is ``None`` before any packet
+                arrived, or the switch would use an uncalibrated recognition (see the
+                class). A refused call changes nothing.
         """
         cfg = self.config
         t = check_finite("t", t)
+        if self._last_t is not None and t < self._last_t:
+            # a clock stepping back would inflate the operator's measured speed
+            raise InvalidParameterError(
+                f"t must not go back: {t!r} s is earlier than the previous step's "
+                f"{self._last_t!r} s"
+            )
         if packet is not None:
             h = np.asarray(packet, dtype=float)
             if h.ndim != 1 or h.shape[0] == 0 or not np.all(np.isfinite(h)):
@@ -445,6 +481,7 @@ class SkillCPD:
             self._last_packet = h.copy()
             self._last_packet_t = float(t)
             self._record(self.position)
+            self._last_t = t
             return self.position.copy()
         if self.position is None:
             raise InvalidParameterError("no packet has arrived yet: the robot has no position")
@@ -462,4 +499,5 @@ class SkillCPD:
             self._s += self._speed() * cfg.dt
             self.position = self._skill_point()
         self._record(self.position)
+        self._last_t = t
         return self.position.copy()

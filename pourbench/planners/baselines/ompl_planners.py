@@ -18,7 +18,6 @@ from pourbench.planners.kinematics import ArmKinematics
 from pourbench.planners.world import PlanningWorld
 
 OMPL_PLANNERS: tuple[str, ...] = ("rrtconnect", "rrt", "prmstar")
-_SEEDED = False
 
 
 def plan_ompl(
@@ -46,7 +45,10 @@ def plan_ompl(
         time_limit: planning time limit (s); PRM* uses all of it (it keeps improving).
         span: half-width of the joint box around start/goal for joints without limits (rad).
         resolution: motion-check resolution as a fraction of the space's extent.
-        seed: OMPL's random seed (applied once per process, OMPL's own rule).
+        seed: random seed: OMPL's seed generator is reseeded on every call, so the same
+            problem with the same seed gives the same path with RRT-Connect and RRT (PRM*
+            grows its roadmap for the whole ``time_limit``, so its path also depends on
+            the machine's speed).
 
     Raises:
         UnknownNameError: unknown planner name.
@@ -68,10 +70,16 @@ def plan_ompl(
 
     classes = {"rrtconnect": og.RRTConnect, "rrt": og.RRT, "prmstar": og.PRMstar}
     ou.setLogLevel(ou.LOG_ERROR)
-    global _SEEDED
-    if not _SEEDED:  # OMPL takes one seed per process (and rejects 0)
+    # The planner and sampler made below draw their seeds from OMPL's seed generator, so
+    # reseeding it makes this call reproducible. OMPL rejects 0, and logs an error on every
+    # reseed after the first ("changing seed now will not lead to deterministic sampling",
+    # true only of RNGs that already exist): silence that one line.
+    level = ou.getLogLevel()
+    ou.setLogLevel(ou.LOG_NONE)
+    try:
         ou.RNG.setSeed(int(seed) + 1)
-        _SEEDED = True
+    finally:
+        ou.setLogLevel(level)
     n = kin.n
     lo = np.where(np.isfinite(kin.lower), kin.lower, np.minimum(q_start, q_goal) - span)
     hi = np.where(np.isfinite(kin.upper), kin.upper, np.maximum(q_start, q_goal) + span)
