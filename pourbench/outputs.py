@@ -18,6 +18,10 @@ class OutputPathError(InvalidParameterError):
     """An output path that cannot be written."""
 
 
+PARTIAL = ".partial"
+"""Appended to an output's name for the file :class:`AtomicOutput` writes before the move."""
+
+
 def _as_path(path: object, what: str, empty_ok: bool = False) -> Path:
     """``path`` (a ``str`` or ``os.PathLike``, non-empty unless ``empty_ok``: the current
     folder) as a :class:`~pathlib.Path`."""
@@ -36,13 +40,14 @@ def check_output_path(path: str | Path) -> Path:
 
     Raises:
         OutputPathError: the path is not a non-empty path string, contains NUL, ends with a
-            separator, is a folder or cannot be looked up (a name too long), or its folder
-            cannot be created or written.
+            separator, is a folder or cannot be looked up (a name too long, also with
+            ``.partial`` appended), or its folder cannot be created or written.
     """
     p = _as_path(path, "output path")
     text = os.fspath(path)
     try:
         is_dir = p.is_dir()
+        p.with_name(p.name + PARTIAL).is_dir()  # the name AtomicOutput writes to first
     except OSError as exc:  # e.g. a name longer than the file system allows
         raise OutputPathError(f"output path {text!r}: {exc.strerror or exc}") from exc
     if is_dir:
@@ -93,7 +98,7 @@ class AtomicOutput:
 
     def __init__(self, path: str | Path) -> None:
         self.path = check_output_path(path)
-        self.partial = self.path.with_name(self.path.name + ".partial")
+        self.partial = self.path.with_name(self.path.name + PARTIAL)
         if self.partial.is_dir():  # (a leftover partial file is overwritten)
             raise OutputPathError(
                 f"{str(self.partial)!r} is a folder: remove it to write {str(self.path)!r}"

@@ -131,3 +131,26 @@ def test_results_join_episode_by_episode() -> None:
     assert both.mean_abs_error_g == pytest.approx(12.0) and both.success_rate == pytest.approx(
         2 / 3
     )
+
+
+@pytest.mark.parametrize(
+    "target, words",
+    [
+        ("100", "target_g must be a number, got '100'"),
+        (True, "target_g must be a number, got True"),
+        (0, "target_g must be > 0, got 0"),
+        (-5.0, "target_g must be > 0, got -5.0"),
+        (float("nan"), "target_g must be finite"),
+    ],
+)
+def test_a_bad_target_is_refused_as_the_env_refuses_it(monkeypatch, target, words) -> None:
+    """The env's own check, before any env is built: a string or a bool is not converted."""
+    import pourbench.agents.evaluate as evaluate_module
+    from pourbench.errors import InvalidParameterError
+
+    def no_env(**kwargs):
+        raise AssertionError("an env was built")
+
+    monkeypatch.setattr(evaluate_module, "PourEnv", no_env)
+    with pytest.raises(InvalidParameterError, match=re.escape(words)):
+        evaluate(_still, 1, target_g=target)

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -101,3 +102,60 @@ def test_an_unfinished_run_is_refused(tmp_path) -> None:
     (tmp_path / "model.zip").write_bytes(b"")
     with pytest.raises(InvalidParameterError, match="not a finished training run: no state"):
         ship(tmp_path, "pournet-lstm", policy_dir=tmp_path / "out")
+
+
+@pytest.mark.parametrize("name", ["pd", "random"])
+def test_a_builtin_policy_name_is_refused(finished_run, tmp_path, name) -> None:
+    """``load_policy("pd")`` is the built-in PD, so a model shipped as "pd" could never load."""
+    from pourbench.agents.ship import ship
+
+    with pytest.raises(InvalidParameterError, match=f"'{name}' is a built-in policy"):
+        ship(finished_run[0], name, policy_dir=tmp_path)
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    "file, content, words",
+    [
+        ("result.json", {"mean_abs_error_g": 1, "random_mean_abs_error_g": 2}, "has no policy"),
+        ("result.json", "{", "is unreadable (JSONDecodeError"),
+        ("result.json", b"\xff", "is unreadable (UnicodeDecodeError"),
+        ("result.json", [], "holds a list, not an object"),
+        ("state.json", {"args": [], "timesteps": 8, "train_s": 3.0}, "'args' must be an object"),
+        ("state.json", {"args": {}, "timesteps": 8, "train_s": 3.0}, "algorithm, policy, seed"),
+        ("state.json", {"timesteps": 8}, "has no args, train_s"),
+    ],
+)
+def test_a_malformed_run_file_is_refused_with_nothing_written(
+    finished_run, tmp_path, file, content, words
+) -> None:
+    import shutil
+
+    from pourbench.agents.ship import ship
+
+    run = tmp_path / "run"
+    shutil.copytree(finished_run[0], run)
+    if isinstance(content, bytes):
+        (run / file).write_bytes(content)
+    else:
+        (run / file).write_text(content if isinstance(content, str) else json.dumps(content))
+    policies = tmp_path / "policies"
+    with pytest.raises(InvalidParameterError, match=file) as err:
+        ship(run, "mine", policy_dir=policies)
+    assert words in str(err.value)
+    assert not policies.exists()
+
+
+def test_a_failed_save_leaves_no_partial_file(finished_run, tmp_path, monkeypatch) -> None:
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    from pourbench.agents.ship import ship
+
+    def save_then_fail(self, path, *args, **kwargs) -> None:
+        Path(path).write_bytes(b"half a model")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(BaseAlgorithm, "save", save_then_fail)
+    with pytest.raises(OSError, match="disk full"):
+        ship(finished_run[0], "mine", policy_dir=tmp_path)
+    assert not list(tmp_path.iterdir())

@@ -62,6 +62,26 @@ def _write(tmp_path: Path, text: str, name: str = "sweep.toml") -> Path:
         ("[search]\nlearning_rate = {uniform = [-1.0, 1e-4]}", "search.learning_rate: "),
         ("[search]\nseed = {randint = [0.5, 3]}", "randint takes integers"),
         ("[search\nseed = [0]", "not valid TOML"),
+        ("[search]\nnum_envs = {uniform = [2, 8]}", "search.num_envs: uniform draws floats"),
+        ("[search]\nbatch_size = {loguniform = [8, 64]}", "batch_size is an integer"),
+        (
+            "[train]\nicm = false\ncurriculum = false\n"
+            "[search]\nalgorithm = ['ppo', 'sac']\ntarget_kl = [0.0, 0.02]",
+            "search: the trial {'algorithm': 'sac', 'target_kl': 0.02}: target_kl=0.02 limits",
+        ),
+        (
+            "[train]\nicm = false\ncurriculum = false\n"
+            "[search]\nalgorithm = ['ppo', 'sac']\ntarget_kl = {uniform = [0.0, 0.02]}",
+            "the trial {'algorithm': 'sac', 'target_kl': 0.02}",
+        ),
+        (
+            "[sweep]\ncpus_per_trial = 4\n[train]\nnum_envs = 2\n[search]\nseed = [0, 1]",
+            "workers=4 is more than num_envs=2 (each trial's workers is sweep.cpus_per_trial, 4)",
+        ),
+        (
+            "[sweep]\ncpus_per_trial = 4\n[search]\nnum_envs = [8, 2]",
+            "the trial {'num_envs': 2}: workers=4 is more than num_envs=2",
+        ),
     ],
 )
 def test_a_malformed_config_names_the_file_and_the_key(tmp_path, capsys, text, words) -> None:
@@ -78,6 +98,15 @@ def test_a_malformed_config_names_the_file_and_the_key(tmp_path, capsys, text, w
 def test_a_missing_config_is_named(tmp_path) -> None:
     with pytest.raises(PourbenchError, match=r"nowhere\.toml: cannot read"):
         load_sweep(tmp_path / "nowhere.toml")
+
+
+def test_a_config_that_is_not_utf8_is_named(tmp_path, capsys) -> None:
+    path = tmp_path / "latin1.toml"
+    path.write_bytes("[search]\n# réglages\nseed = [0]\n".encode("latin-1"))
+    with pytest.raises(PourbenchError, match=r"latin1\.toml: cannot read .*utf-8"):
+        load_sweep(path)
+    assert main(["sweep", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
 
 
 def test_the_sample_config_is_a_grid_with_a_draw() -> None:
@@ -154,3 +183,43 @@ def test_a_killed_sweep_resumes_its_trials_from_their_checkpoints(tmp_path) -> N
             assert 128 <= history[0]["timesteps"] < 512
             resumed += 1
     assert resumed >= 1
+
+
+@pytest.mark.parametrize(
+    "left, resume",
+    [
+        (["model.zip", "icm.pt", "state.json"], True),  # a checkpoint before the first report
+        (["model.zip"], False),  # died while writing its first checkpoint
+        ([], False),  # died before it
+    ],
+)
+def test_a_trial_that_dies_before_its_first_report_restarts(tmp_path, monkeypatch, left,
+                                                            resume) -> None:  # fmt: skip
+    """With no Tune checkpoint, a restarted trial resumes the checkpoint its run wrote (the
+    run's state.json beside its model), or starts afresh from an empty run folder: a run
+    folder holding a model without --resume would be refused in every retry."""
+    import types
+
+    from ray import tune
+
+    import pourbench.agents.train
+    from pourbench.agents.sweep import run_trial
+
+    run = tmp_path / "trial" / "run"
+    run.mkdir(parents=True)
+    for name in left:
+        (run / name).write_text(name)
+    context = types.SimpleNamespace(get_trial_dir=lambda: str(tmp_path / "trial"))
+    monkeypatch.setattr(tune, "get_context", lambda: context)
+    monkeypatch.setattr(tune, "get_checkpoint", lambda: None)
+    trained = []
+
+    def train(args, command=None, report=None):
+        trained.append((args, sorted(p.name for p in run.iterdir()) if run.exists() else []))
+
+    monkeypatch.setattr(pourbench.agents.train, "train", train)
+    run_trial({"icm": True, "curriculum": True, "seed": 0, "learning_rate": 3e-4},
+              load_sweep(sample_config()))  # fmt: skip
+    [(args, files)] = trained
+    assert (args.resume, args.out) == (resume, str(run))
+    assert files == (sorted(left) if resume else [])

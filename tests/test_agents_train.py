@@ -318,7 +318,77 @@ def test_a_run_from_before_a_setting_existed_resumes_with_its_default(tmp_path) 
     (out / "model.zip").write_bytes(b"")
     args = _args(TINY)
     saved = {k: v for k, v in asdict(args).items() if k != "rehearse"}
-    (out / "state.json").write_text(json.dumps({"args": saved}))
+    (out / "state.json").write_text(json.dumps(_state(saved)))
     assert _read_state(out, args)["args"] == saved
     with pytest.raises(ValueError, match="has rehearse=False, not True"):
         _read_state(out, replace(args, rehearse=True))
+
+
+def _state(args: dict) -> dict:
+    """A state.json as a checkpoint writes it, with the settings ``args``."""
+    return {"args": args, "timesteps": 16, "train_s": 1.0, "sessions": 1, "history": []}
+
+
+@pytest.mark.parametrize(
+    "saved, argv, words",
+    [
+        ([], ["--batch-size", "32"], "has batch_size=256, not 32"),
+        ([], ["--icm-eta", "0.5"], "has icm_eta=0.02, not 0.5"),
+        ([], ["--target-g", "100"], "has target_g=0.0, not 100.0"),
+        (["--no-curriculum"], ["--no-curriculum", "--liquid", "honey"],
+         "has liquid='water', not 'honey'"),
+    ],
+)  # fmt: skip
+def test_a_resume_that_changes_a_restored_setting_is_refused(tmp_path, capsys, saved, argv,
+                                                             words) -> None:  # fmt: skip
+    """SB3 restores batch_size from model.zip, the ICM's eta and the target (and, without the
+    curriculum, the liquid) set the worlds and every evaluation: a resume that changes one is
+    refused, naming both values, before anything is built or written."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.zip").write_bytes(b"a checkpoint")
+    state = json.dumps(_state(asdict(_args([*TINY, *saved]))))
+    (out / "state.json").write_text(state)
+    assert main([*TINY, *argv, "--out", str(out), "--resume"]) == 2
+    assert words in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["model.zip", "state.json"]
+    assert (out / "state.json").read_text() == state
+    assert (out / "model.zip").read_bytes() == b"a checkpoint"
+
+
+def test_with_the_curriculum_a_resume_may_change_the_unused_liquid(tmp_path) -> None:
+    from pourbench.agents.train import _read_state
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.zip").write_bytes(b"")
+    args = _args(TINY)
+    (out / "state.json").write_text(json.dumps(_state(asdict(args))))
+    assert _read_state(out, replace(args, liquid="honey"))["timesteps"] == 16
+
+
+@pytest.mark.parametrize(
+    "state, words",
+    [
+        ([], "holds a list, not an object"),
+        ({"args": []}, "'args' must be an object, got []"),
+        ({"args": {}}, "timesteps must be an integer, got None"),
+        ({"args": {}, "timesteps": 3, "sessions": 1, "train_s": "1"}, "train_s must be a number"),
+        ({**_state({}), "history": 5}, "'history' must be a list, got 5"),
+        ({**_state({}), "best": {"timesteps": 3}}, "'best' must be an object with"),
+        (b"\xff{}", "UnicodeDecodeError"),
+    ],
+)
+def test_a_malformed_state_file_is_refused_in_one_line(tmp_path, capsys, state, words) -> None:
+    """A state.json that is not what a checkpoint writes is refused naming the file, with
+    nothing written."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "model.zip").write_bytes(b"a checkpoint")
+    raw = state if isinstance(state, bytes) else json.dumps(state).encode()
+    (out / "state.json").write_bytes(raw)
+    assert main(["--out", str(out), "--resume"]) == 2  # the settings of "args": {}
+    err = capsys.readouterr().err
+    assert "state.json" in err and "missing or unreadable" in err and words in err, err
+    assert sorted(p.name for p in out.iterdir()) == ["model.zip", "state.json"]
+    assert (out / "state.json").read_bytes() == raw

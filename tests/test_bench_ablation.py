@@ -66,10 +66,12 @@ def test_a_finished_run_evaluated_on_other_liquids_is_refused_not_read_back(tmp_
 @pytest.mark.slow
 def test_quick_ablation_trains_three_runs_and_reads_them_back(tmp_path, monkeypatch, capsys):
     """The quick variant trains the three runs (256 steps each), writes the table and the
-    figure, and a second call reads the finished runs back instead of training again."""
+    figure, and a second call reads the finished runs back instead of training again. With
+    --json, stdout is the one JSON object even while it trains (training logs to stderr)."""
     monkeypatch.chdir(tmp_path)
-    args = argparse.Namespace(quick=True, no_write=False, out=str(tmp_path / "lb"), json=False)
+    args = argparse.Namespace(quick=True, no_write=False, out=str(tmp_path / "lb"), json=True)
     assert ablation.run(args) == 0
+    assert isinstance(json.loads(capsys.readouterr().out), dict)
     data = json.loads((tmp_path / "lb" / "ablation.json").read_text())
     assert [r["variant"] for r in data["rows"]] == list(ablation.VARIANTS)
     assert all(r["steps"] == 256 for r in data["rows"])

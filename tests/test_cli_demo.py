@@ -186,7 +186,8 @@ def test_run_demo_called_directly_refuses_bad_numbers(tmp_path, kw, words) -> No
         ("", "output path must be a non-empty path"),
         ("od/a\0b", "contains a NUL character"),
         ("od/newdir/", "ends with a separator; give a file name"),
-        ("x" * 300 + ".json", r"output path .x+\.json.: \w"),  # was a bare OSError
+        ("x" * 300 + ".json", r"output path .x+\.json.: \w"),
+        ("x" * 245 + ".rrd", r"output path .x+\.rrd.: \w"),  # fits, but not its .partial
     ],
 )
 def test_bad_output_paths_are_refused(tmp_path, monkeypatch, path, words) -> None:

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from pourbench.agents.loading import load_policy, load_sb3_policy
 from pourbench.envs.pour_v0 import PourEnv, check_settings
-from pourbench.errors import check_int
+from pourbench.errors import check_int, check_positive
 
 __all__ = ["EvalResult", "evaluate", "load_sb3_policy", "pour_episode"]
 
@@ -91,7 +91,7 @@ def evaluate(
         policy: "pd", "random", a shipped policy's name, a saved model's path, or a
             callable ``f(obs, new_episode) -> action``.
         episodes: number of episodes.
-        target_g: target of every episode (None: drawn by the env), g.
+        target_g: target of every episode, a number > 0 (None: drawn by the env), g.
         seed: first episode's seed.
         progress: show a progress bar.
         **env_kwargs: :class:`~pourbench.envs.core.PourConfig` fields (e.g. ``liquid``),
@@ -99,16 +99,18 @@ def evaluate(
 
     Raises:
         InvalidParameterError: ``episodes`` not an integer >= 1, ``seed`` not an integer
-            >= 0, a policy that is neither a name, a path nor a callable, or an unknown
-            ``env_kwargs`` name; all checked before any episode runs.
+            >= 0, ``target_g`` neither None nor a finite number > 0 (a bool or a string such
+            as ``"100"`` is refused, not converted), a policy that is neither a name, a path
+            nor a callable, or an unknown ``env_kwargs`` name; all checked before any episode
+            runs.
     """
     episodes = check_int("episodes", episodes, minimum=1)
     seed = check_int("seed", seed, minimum=0)
+    options = {} if target_g is None else {"target_g": check_positive("target_g", target_g)}
     check_settings(env_kwargs, also=("render_mode", "record_path"))
     act = policy if callable(policy) else load_policy(policy, seed)
     env = PourEnv(**env_kwargs)
     errors, spills, success, steps = [], [], [], []
-    options = {} if target_g is None else {"target_g": float(target_g)}
     for ep in tqdm(range(episodes), desc="episodes", disable=not progress):
         info, n = pour_episode(env, act, seed + ep, options)
         errors.append(info["error_g"])

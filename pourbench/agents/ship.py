@@ -19,11 +19,33 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pourbench.argtypes import POLICY_DIR
+from pourbench.argtypes import BUILTIN_POLICIES, POLICY_DIR
 from pourbench.errors import InvalidParameterError, PourbenchError
 from pourbench.outputs import write_text_atomic
 
 _NAME = re.compile(r"^[a-z0-9][a-z0-9-]*$")
+_STATE_KEYS = ("args", "timesteps", "train_s")
+_ARGS_KEYS = ("algorithm", "policy", "seed")
+_RESULT_KEYS = ("mean_abs_error_g", "policy", "random_mean_abs_error_g")
+
+
+def _read_run_json(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
+    """The JSON object in ``path``, which must hold ``keys``; an
+    :class:`InvalidParameterError` naming the file otherwise."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:  # ValueError: not JSON, not UTF-8
+        raise InvalidParameterError(
+            f"{str(path)!r} is unreadable ({type(exc).__name__}: {exc})"
+        ) from None
+    if not isinstance(data, dict):
+        raise InvalidParameterError(f"{str(path)!r} holds a {type(data).__name__}, not an object")
+    missing = [k for k in keys if k not in data]
+    if missing:
+        raise InvalidParameterError(
+            f"{str(path)!r} has no {', '.join(missing)}: not what pourbench train writes"
+        )
+    return data
 
 
 def ship(
@@ -34,8 +56,11 @@ def ship(
     one when it kept one, unless ``last``: then the model at the end of training.
 
     Raises:
-        InvalidParameterError: a name that is not lowercase letters, digits and dashes, or a
-            run without ``model.zip``, ``state.json`` and ``result.json`` (an unfinished run).
+        InvalidParameterError: a name that is not lowercase letters, digits and dashes, or
+            that of a built-in policy (``load_policy`` would never find the shipped one); a
+            run without ``model.zip``, ``state.json`` and ``result.json`` (an unfinished run),
+            or whose JSON files are not what ``pourbench train`` writes. Nothing is written
+            then, nor when the model cannot be saved.
     """
     from pourbench.agents.loading import load_model
 
@@ -43,15 +68,33 @@ def ship(
         raise InvalidParameterError(
             f"a policy name is lowercase letters, digits and dashes, got {name!r}"
         )
+    if name in BUILTIN_POLICIES:
+        raise InvalidParameterError(
+            f"{name!r} is a built-in policy ({', '.join(BUILTIN_POLICIES)}); give another name"
+        )
     run = Path(run_dir)
     missing = [f for f in ("model.zip", "state.json", "result.json") if not (run / f).is_file()]
     if missing:
         raise InvalidParameterError(
             f"{str(run)!r} is not a finished training run: no {', '.join(missing)}"
         )
-    state = json.loads((run / "state.json").read_text())
-    result = json.loads((run / "result.json").read_text())
+    state_path, result_path = run / "state.json", run / "result.json"
+    state = _read_run_json(state_path, _STATE_KEYS)
+    settings = state["args"]
+    if not isinstance(settings, dict) or any(k not in settings for k in _ARGS_KEYS):
+        raise InvalidParameterError(
+            f"{str(state_path)!r}: 'args' must be an object with "
+            f"{', '.join(_ARGS_KEYS)}, got {settings!r}"
+        )
+    sessions = state.get("history", [])
+    if not isinstance(sessions, list) or not all(isinstance(s, dict) for s in sessions):
+        raise InvalidParameterError(
+            f"{str(state_path)!r}: 'history' must be a list of objects, got {sessions!r}"
+        )
+    result = _read_run_json(result_path, _RESULT_KEYS)
     best = result.get("best")
+    if best is not None and not isinstance(best, dict):
+        raise InvalidParameterError(f"{str(result_path)!r}: 'best' must be an object, got {best!r}")
     use_best = best is not None and not last and (run / "best_model.zip").is_file()
     checkpoint = {"file": "best_model.zip", **best} if use_best else {
         "file": "model.zip", "timesteps": state["timesteps"]
@@ -61,24 +104,18 @@ def ship(
     policy.optimizer = policy.optimizer_class(
         policy.parameters(), lr=model.lr_schedule(1.0), **policy.optimizer_kwargs
     )
-    out = Path(policy_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    zip_path = out / f"{name}.zip"
-    partial = out / f"{name}.partial.zip"
-    model.save(partial)
-    sessions = state.get("history", [])
     meta: dict[str, Any] = {
         "name": name,
-        "algorithm": state["args"]["algorithm"],
-        "policy": state["args"]["policy"],
+        "algorithm": settings["algorithm"],
+        "policy": settings["policy"],
         "commands": [s.get("command") for s in sessions],
         "steps": state["timesteps"],
-        "seed": state["args"]["seed"],
+        "seed": settings["seed"],
         "wall_time_s": state["train_s"],
         "git_sha": [s.get("git_sha") for s in sessions],
         "machine": [s.get("machine") for s in sessions],
         "date": [s.get("date") for s in sessions],
-        "settings": state["args"],
+        "settings": settings,
         "warm_start": state.get("warm_start"),
         "checkpoint": checkpoint,
         "final_evaluation": {  # the model at the end of training, not the checkpoint
@@ -89,7 +126,15 @@ def ship(
             "pd_mean_abs_error_g": result.get("pd_mean_abs_error_g"),
         },
     }
-    partial.replace(zip_path)
+    out = Path(policy_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    zip_path = out / f"{name}.zip"
+    partial = out / f"{name}.partial.zip"
+    try:
+        model.save(partial)
+        partial.replace(zip_path)
+    finally:
+        partial.unlink(missing_ok=True)
     meta_path = out / f"{name}.json"
     write_text_atomic(meta_path, json.dumps(meta, indent=2) + "\n")
     return meta_path

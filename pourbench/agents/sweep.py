@@ -5,8 +5,9 @@ Each trial is one :func:`pourbench.agents.train.train` run as a Tune function tr
 Every periodic evaluation reports the run's average pouring error (``mean_abs_error_g``,
 Table 6.2's liquids or ``eval_liquid``) through ``tune.report``, with the run's checkpoint
 (model, curiosity module, state). A trial that fails or whose worker dies restarts from its
-last report (``max_failures``), and a sweep whose command was stopped resumes where it was
-when the same command runs again. The sweep's folder (``<out>/<name>``, Tune's experiment
+last report (``max_failures``; before its first report: from the last checkpoint its run
+wrote, else afresh), and a sweep whose command was stopped resumes where it was when the
+same command runs again. The sweep's folder (``<out>/<name>``, Tune's experiment
 folder) ends with ``sweep.md`` and ``sweep.json`` (one row per trial) and ``sweep.png`` (each
 trial's evaluation error against steps).
 
@@ -22,14 +23,18 @@ The config (``pourbench/assets/sweeps/icm_curriculum.toml`` is a sample):
   ``{randint = [lo, hi]}`` (hi excluded) or ``{choice = [a, b, …]}``.
 
 Every setting is checked when the config is read, against :class:`TrainArgs` with each
-grid value and each draw's bounds, so a bad config fails in a second, naming the file and
-the key. Ray starts on this machine's cores unless ``--address`` joins a cluster
-(docs/ray.md).
+grid value and each draw's bounds, then each trial's settings as the sweep makes them (every
+grid combination, with each draw at its bounds or choices, and ``workers`` =
+``cpus_per_trial``), so a bad config fails in a second, naming the file and the key. An
+integer setting is searched by a grid, ``randint`` or ``choice``, not ``uniform`` or
+``loguniform``, which draw floats. Ray starts on this machine's cores unless ``--address``
+joins a cluster (docs/ray.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import shutil
 import sys
@@ -37,7 +42,7 @@ import tempfile
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, get_type_hints
 
 from pourbench.agents.train import TrainArgs
 from pourbench.errors import InvalidParameterError
@@ -103,8 +108,8 @@ def load_sweep(path: str | Path) -> Sweep:
     file and the key."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
         raise InvalidParameterError(f"{path}: cannot read the sweep config ({exc})") from None
     except tomllib.TOMLDecodeError as exc:
         raise InvalidParameterError(f"{path}: not valid TOML ({exc})") from None
@@ -147,8 +152,27 @@ def load_sweep(path: str | Path) -> Sweep:
         > 10_000
     ):
         raise _fail(path, "search", "more than 10,000 trials")
-    return Sweep(name=name, train=train, search=search, path=path,
-                 **{k: head[k] for k in SWEEP_KEYS if k in head and k != "name"})  # fmt: skip
+    sweep = Sweep(name=name, train=train, search=search, path=path,
+                  **{k: head[k] for k in SWEEP_KEYS if k in head and k != "name"})  # fmt: skip
+    _check_trials(sweep)
+    return sweep
+
+
+def _check_trials(sweep: Sweep) -> None:
+    """Every trial's settings through :meth:`Sweep.trial_args`, as :func:`run_trial` makes
+    them: each combination of the grids' values and the draws' bounds or choices."""
+    keys = list(sweep.search)
+    candidates = [_candidates(sweep.path, k, sweep.search[k]) for k in keys]
+    implied = "workers" not in sweep.train and "workers" not in sweep.search
+    for values in itertools.product(*candidates):
+        config = dict(zip(keys, values, strict=True))
+        try:
+            sweep.trial_args(config, Path("trial"), resume=False)
+        except (TypeError, ValueError) as exc:
+            why = str(exc)
+            if implied and "workers" in why:
+                why += f" (each trial's workers is sweep.cpus_per_trial, {sweep.cpus_per_trial})"
+            raise _fail(sweep.path, "search", f"the trial {config}: {why}") from None
 
 
 def _candidates(path: Path, key: str, value: Any) -> list[Any]:
@@ -168,6 +192,8 @@ def _candidates(path: Path, key: str, value: Any) -> list[Any]:
         raise _fail(path, where, f"{kind} takes a list, got {spec!r}")
     if kind == "choice":
         return spec
+    if kind in ("uniform", "loguniform") and get_type_hints(TrainArgs)[key] in (int, int | None):
+        raise _fail(path, where, f"{kind} draws floats; {key} is an integer: use randint or a grid")
     if len(spec) != 2 or not all(isinstance(v, int | float) for v in spec):
         raise _fail(path, where, f"{kind} takes [low, high], got {spec!r}")
     low, high = spec
@@ -182,9 +208,21 @@ def _candidates(path: Path, key: str, value: Any) -> list[Any]:
     return [low, high]
 
 
+def _resumes(out: Path, restored: bool) -> bool:
+    """Whether the trial's run in ``out`` resumes: from Tune's checkpoint (``restored``, copied
+    there), or from the run's own checkpoint when it died before its first report (its
+    ``state.json`` is written with every checkpoint); otherwise it starts afresh, and what a
+    run that died before its first checkpoint left in ``out`` is removed."""
+    if restored or (out / "state.json").is_file():
+        return True
+    if out.exists():
+        shutil.rmtree(out)
+    return False
+
+
 def run_trial(config: dict[str, Any], sweep: Sweep) -> None:
-    """Tune's function trainable: train with the trial's ``config``, resuming from Tune's
-    checkpoint when the trial restarts, and report each evaluation with its checkpoint."""
+    """Tune's function trainable: train with the trial's ``config``, resuming when the trial
+    restarts (:func:`_resumes`), and report each evaluation with its checkpoint."""
     from ray import tune
 
     out = Path(tune.get_context().get_trial_dir()) / "run"
@@ -195,6 +233,7 @@ def run_trial(config: dict[str, Any], sweep: Sweep) -> None:
             for name in CHECKPOINT_FILES:
                 if (Path(saved) / name).is_file():
                     shutil.copy2(Path(saved) / name, out / name)
+    resume = _resumes(out, restored=checkpoint is not None)
 
     def report(metrics: dict[str, Any], run: Path) -> None:
         with tempfile.TemporaryDirectory() as folder:
@@ -205,7 +244,7 @@ def run_trial(config: dict[str, Any], sweep: Sweep) -> None:
 
     from pourbench.agents.train import train
 
-    args = sweep.trial_args(config, out, resume=checkpoint is not None)
+    args = sweep.trial_args(config, out, resume=resume)
     train(args, command=f"pourbench sweep {sweep.path} (trial {config})", report=report)
 
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shlex
 import sys
 import time
 import warnings
@@ -55,6 +56,8 @@ _SAME_ON_RESUME = (
     "curriculum",
     "num_envs",
     "n_steps",
+    "batch_size",
+    "icm_eta",
     "learning_rate",
     "target_kl",
     "final_error_per_g",
@@ -62,7 +65,11 @@ _SAME_ON_RESUME = (
     "sde",
     "rehearse",
     "eval_liquid",
+    "target_g",
 )
+"""Settings a resume must keep: SB3 restores its own from model.zip (batch_size, n_steps,
+learning_rate, ...), or they set the worlds, the ICM or every evaluation. ``liquid`` joins
+them without the curriculum, where it is every episode's and evaluation's liquid."""
 
 
 @dataclass
@@ -316,22 +323,51 @@ def _save(model: Any, path: Path) -> None:
 
 
 def _read_state(out: Path, args: TrainArgs) -> dict[str, Any]:
-    """The run's ``state.json`` for a resume, checked against ``args``."""
+    """The run's ``state.json`` for a resume, checked against ``args``.
+
+    Raises:
+        OutputPathError: no ``model.zip`` in ``out``.
+        InvalidParameterError: ``state.json`` missing, unreadable or not what a checkpoint
+            writes (an object with ``args``, ``timesteps``, ``train_s`` and ``sessions``), or
+            a setting of :data:`_SAME_ON_RESUME` that differs from the run's.
+    """
     from pourbench.outputs import OutputPathError
 
     model_path, state_path = out / "model.zip", out / "state.json"
     if not model_path.exists():
         raise OutputPathError(f"--resume: no model to resume from at {str(model_path)!r}")
+
+    def bad(problem: str) -> InvalidParameterError:
+        return InvalidParameterError(
+            f"--resume: {str(state_path)!r} is missing or unreadable ({problem}); it is "
+            "written with every checkpoint"
+        )
+
     try:
-        state = json.loads(state_path.read_text())
-        saved = state["args"]
-    except (OSError, ValueError, KeyError) as exc:
-        raise InvalidParameterError(
-            f"--resume: {str(state_path)!r} is missing or unreadable ({type(exc).__name__}: "
-            f"{exc}); it is written with every checkpoint"
-        ) from None
+        state = json.loads(state_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:  # ValueError: not JSON, not UTF-8
+        raise bad(f"{type(exc).__name__}: {exc}") from None
+    if not isinstance(state, dict):
+        raise bad(f"holds a {type(state).__name__}, not an object")
+    if not isinstance(state.get("args"), dict):
+        raise bad(f"'args' must be an object, got {state.get('args')!r}")
+    try:
+        check_int("timesteps", state.get("timesteps"), minimum=0)
+        check_int("sessions", state.get("sessions"), minimum=0)
+        check_finite("train_s", state.get("train_s"), minimum=0.0)
+    except InvalidParameterError as exc:
+        raise bad(str(exc)) from None
+    if not isinstance(state.get("history", []), list):
+        raise bad(f"'history' must be a list, got {state['history']!r}")
+    best = state.get("best")
+    if best is not None and not (
+        isinstance(best, dict) and isinstance(best.get("eval_mean_abs_error_g"), int | float)
+    ):
+        raise bad(f"'best' must be an object with eval_mean_abs_error_g, got {best!r}")
+    saved = state["args"]
     defaults = {f.name: f.default for f in fields(TrainArgs)}
-    for name in _SAME_ON_RESUME:  # a setting newer than the run has its default there
+    same = (*_SAME_ON_RESUME, *(() if args.curriculum else ("liquid",)))
+    for name in same:  # a setting newer than the run has its default there
         had = saved.get(name, defaults[name])
         if had != getattr(args, name):
             raise InvalidParameterError(
@@ -675,7 +711,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m pourbench.age
     stderr and exit status 2, before any work."""
     words = list(sys.argv[1:] if argv is None else argv)
     try:
-        result = train(parse_args(words, prog), " ".join([prog, *words]))
+        result = train(parse_args(words, prog), shlex.join([*prog.split(), *words]))
     except PourbenchError as exc:  # bad input: one clear line, no traceback
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

@@ -20,6 +20,7 @@ each run from its last checkpoint, and a finished run is read back, not trained 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -78,7 +79,8 @@ def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
         resume=(out / "model.zip").is_file(),
     )
     print(f"ablation: training {name} for {steps} steps into {out}", file=sys.stderr)
-    return train(args, command=f"pourbench bench ablation ({name})")
+    with contextlib.redirect_stdout(sys.stderr):  # stdout holds the suite's JSON only
+        return train(args, command=f"pourbench bench ablation ({name})")
 
 
 def curves(out: Path) -> dict[str, list[tuple[float, float]]]:
