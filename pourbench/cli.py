@@ -120,11 +120,10 @@ def _cmd_containers(args: argparse.Namespace) -> int:
 
 def _cmd_view(args: argparse.Namespace) -> int:
     from pourbench.scene import build_pour_scene
+    from pourbench.view import check_display, record
 
     robot = None if args.robot == "none" else args.robot
     if args.viewer:
-        from pourbench.view import check_display
-
         check_display()  # before the scene is built: a missing display fails fast
     scene = build_pour_scene(args.pouring, args.receiving, robot)
     data = scene.make_data()
@@ -133,8 +132,6 @@ def _cmd_view(args: argparse.Namespace) -> int:
 
         mujoco.viewer.launch(scene.model, data)
         return 0
-    from pourbench.view import record
-
     print(f"wrote {record(scene.model, data, args.out)}")
     return 0
 

@@ -17,7 +17,6 @@ import numpy as np
 from scipy.spatial.distance import cdist
 
 from pourbench.containers import (
-    DEFAULT_MAX_ERROR,
     Container,
     add_container_body,
     container_names,
@@ -31,20 +30,15 @@ ROBOTS: tuple[str, ...] = ("movo", "panda")
 MJCF_DIR = Path(str(resources.files("pourbench") / "assets" / "mjcf"))
 
 
-def robot_path(name: str) -> Path:
-    """Path of a robot's MJCF file.
+def robot_spec(name: str) -> mujoco.MjSpec:
+    """A fresh, editable :class:`mujoco.MjSpec` of robot ``name`` ("movo" or "panda").
 
     Raises:
         UnknownNameError: ``name`` is not one of :data:`ROBOTS`.
     """
     if name not in ROBOTS:
         raise UnknownNameError("robot", name, ROBOTS)
-    return MJCF_DIR / f"{name}.xml"
-
-
-def robot_spec(name: str) -> mujoco.MjSpec:
-    """A fresh, editable :class:`mujoco.MjSpec` of robot ``name`` ("movo" or "panda")."""
-    return mujoco.MjSpec.from_file(str(robot_path(name)))
+    return mujoco.MjSpec.from_file(str(MJCF_DIR / f"{name}.xml"))
 
 
 def load_robot(name: str) -> mujoco.MjModel:
@@ -205,8 +199,6 @@ def build_pour_scene(
     pouring: str = "training",
     receiving: str = "tray",
     robot: str | None = None,
-    *,
-    max_error: float = DEFAULT_MAX_ERROR,
 ) -> PourScene:
     """Compose a pouring scene: table, the two containers and optionally a robot.
 
@@ -225,7 +217,6 @@ def build_pour_scene(
         pouring: name of the pouring container (``containers.toml``).
         receiving: name of the receiving container.
         robot: None, "movo" or "panda".
-        max_error: container mesh accuracy, m.
 
     Raises:
         UnknownNameError: unknown robot or container (a ``ValueError`` listing the known ones).
@@ -244,9 +235,7 @@ def build_pour_scene(
         spec.modelname = f"pour_{pouring}_{receiving}"
         _add_environment(spec, (0.0, 0.0), TABLE_HALF_XY)
         world = spec.worldbody
-        rbody = add_container_body(
-            spec, world, recv, name="receiving", pos=(0, 0, TABLE_HEIGHT), max_error=max_error
-        )
+        rbody = add_container_body(spec, world, recv, name="receiving", pos=(0, 0, TABLE_HEIGHT))
         scale = _add_scale(spec, rbody)
         lift = TABLE_HEIGHT + recv.rim_height + 0.05
         add_container_body(
@@ -256,7 +245,6 @@ def build_pour_scene(
             name="pouring",
             pos=(0.0, -recv.diameter / 4, lift),
             mocap=True,
-            max_error=max_error,
         )
         return PourScene(spec, spec.compile(), None, pour, recv, *scale, True)
 
@@ -278,15 +266,11 @@ def build_pour_scene(
         # beside the held container (upright, they never touch), on the pouring side (+y)
         side = tcp[1] + (pour.diameter + recv.diameter) / 2 + 0.02
         spot = (tcp[0] + pour.diameter / 2, side, TABLE_HEIGHT)
-        rbody = add_container_body(
-            spec, spec.worldbody, recv, name="receiving", pos=spot, max_error=max_error
-        )
+        rbody = add_container_body(spec, spec.worldbody, recv, name="receiving", pos=spot)
         scale = _add_scale(spec, rbody)
     for name, c, body, site in held:
         pos, quat = _grasp_in_body(bare, body, site, c)
-        b = add_container_body(
-            spec, spec.body(body), c, name=name, pos=pos, quat=quat, max_error=max_error
-        )
+        b = add_container_body(spec, spec.body(body), c, name=name, pos=pos, quat=quat)
         b.gravcomp = 1.0
     return PourScene(spec, spec.compile(), robot, pour, recv, *scale, False)
 

@@ -96,7 +96,6 @@ class EvalCallback(BaseCallback):
         super().__init__()
         self.every_steps, self.evaluate = every_steps, evaluate
         self.next_at = every_steps
-        self.results: list[tuple[int, float]] = []
 
     def _on_training_start(self) -> None:
         self.next_at = (self.num_timesteps // self.every_steps + 1) * self.every_steps
@@ -105,7 +104,6 @@ class EvalCallback(BaseCallback):
         if self.num_timesteps >= self.next_at:
             self.next_at += self.every_steps
             result = self.evaluate()
-            self.results.append((self.num_timesteps, result.mean_abs_error_g))
             self.logger.record("eval/mean_abs_error_g", result.mean_abs_error_g)
             self.logger.record("eval/success_rate", result.success_rate)
             print(f"evaluation at {self.num_timesteps} steps: {result.summary()}")

@@ -90,9 +90,7 @@ def evaluate(
     Args:
         policy: "pd", "random", a shipped policy's name, a saved model's path, or a
             callable ``f(obs, new_episode) -> action``.
-        episodes: number of episodes.
         target_g: target of every episode, a number > 0 (None: drawn by the env), g.
-        seed: first episode's seed.
         progress: show a progress bar.
         **env_kwargs: :class:`~pourbench.envs.core.PourConfig` fields (e.g. ``liquid``),
             or :class:`~pourbench.envs.pour_v0.PourEnv`'s ``render_mode`` / ``record_path``.

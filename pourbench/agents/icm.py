@@ -127,8 +127,7 @@ class ICM(nn.Module):
         self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray
     ) -> np.ndarray:
         """(n,) float32 intrinsic reward of n transitions."""
-        t = _tensors(obs, actions, next_obs)
-        return self.losses(*t)[2].numpy().astype(np.float32)
+        return self.losses(*_tensors(obs, actions, next_obs))[2].numpy().astype(np.float32)
 
 
 def _tensors(*arrays: np.ndarray) -> tuple[torch.Tensor, ...]:
@@ -148,7 +147,7 @@ class ICMTrainer:
         obs: np.ndarray,
         actions: np.ndarray,
         next_obs: np.ndarray,
-        rng: np.random.Generator | None = None,
+        rng: np.random.Generator,
         normalise: bool = True,
     ) -> dict[str, float]:
         """``epochs`` passes over the transitions in shuffled minibatches (first folding
@@ -157,7 +156,6 @@ class ICMTrainer:
         o, a, o2 = _tensors(obs, actions, next_obs)
         if normalise:
             self.icm.update_normaliser(torch.cat([o, o2]))
-        rng = rng or np.random.default_rng()
         cfg, n = self.config, len(o)
         inv_sum = fwd_sum = 0.0
         steps = 0

@@ -61,10 +61,6 @@ def algorithm_of(path: str | Path) -> str:
         raise InvalidParameterError(
             f"no policy file at {str(p)!r}; policies: {policy_choices()}, or a model.zip"
         )
-    if not zipfile.is_zipfile(p):
-        raise InvalidParameterError(
-            f"{str(p)!r} is not a saved Stable-Baselines3 model (not a zip file)"
-        )
     try:
         with zipfile.ZipFile(p) as z:
             module = json.loads(z.read("data"))["policy_class"]["__module__"]
@@ -86,8 +82,10 @@ def load_model(path: str | Path, env: Any = None, device: str = "cpu") -> Any:
         InvalidParameterError: the file is not such a model, or its spaces are not Pour-v0's
             (12 observations, 2 actions).
     """
-    algorithm = algorithm_of(path)
-    cls = model_class(algorithm)
+    from sb3_contrib import RecurrentPPO
+    from stable_baselines3 import PPO, SAC
+
+    cls = {"ppo": PPO, "recurrent_ppo": RecurrentPPO, "sac": SAC}[algorithm_of(path)]
     try:
         model = cls.load(path, env=env, device=device)
     except Exception as exc:  # any unreadable file is the same bad input
@@ -102,17 +100,6 @@ def load_model(path: str | Path, env: Any = None, device: str = "cpu") -> Any:
             "Pour-v0 has (12,) and (2,)"
         )
     return model
-
-
-def model_class(algorithm: str) -> type:
-    """The SB3 class of "ppo", "recurrent_ppo" or "sac"."""
-    if algorithm == "recurrent_ppo":
-        from sb3_contrib import RecurrentPPO
-
-        return RecurrentPPO
-    from stable_baselines3 import PPO, SAC
-
-    return {"ppo": PPO, "sac": SAC}[algorithm]
 
 
 def model_policy(model: Any) -> Policy:

@@ -75,7 +75,6 @@ def make_model(
     """A new model of ``algorithm`` ("ppo": FNN, "recurrent_ppo": LSTM, "sac") on ``env``.
 
     Args:
-        algorithm: "ppo", "recurrent_ppo" or "sac".
         env: the SB3 VecEnv it trains on.
         n_steps: PPO / RecurrentPPO rollout length per world (also the LSTM sequence bound).
         batch_size: minibatch size in samples (at most the rollout, ``n_steps × num_envs``,

@@ -169,8 +169,7 @@ class PDPourer:
         undo = self.short * c.control_dt >= c.stall_time
         self.back &= ~undo
         self.short = np.where(undo, 0, self.short)
-        back = self.back
-        self.stalled = np.where(self.hold & ~back & ~rising, self.stalled + 1, 0)
+        self.stalled = np.where(self.hold & ~self.back & ~rising, self.stalled + 1, 0)
         resume = (self.stalled * c.control_dt >= c.stall_time) | undo
         self.hold &= ~resume
         self.stalled = np.where(resume, 0, self.stalled)
@@ -183,7 +182,7 @@ class PDPourer:
         omega = np.where(self.searching, c.search_rate, omega)
         omega = np.where(self.catchup, 1.0, omega)
         omega = np.where(self.hold, 0.0, omega)
-        omega = np.where(back, -1.0, omega)
+        omega = np.where(self.back, -1.0, omega)
         # translate toward the receiving container until the handler starts rotating
         r = np.where((tilt <= 1e-6) & ~self.onset, 1.0, 0.0)
         a = np.stack([omega, r], axis=1).astype(np.float32)

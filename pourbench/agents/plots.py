@@ -48,8 +48,8 @@ def read_progress(paths: Sequence[str | Path]) -> dict[str, list[tuple[float, fl
     return {k: sorted(v) for k, v in series.items()}
 
 
-def plot_training(run_dir: str | Path, png: str | Path | None = None) -> Path:
-    """Write the run's training curves to ``png`` (default ``<run_dir>/training.png``).
+def plot_training(run_dir: str | Path) -> Path:
+    """Write the run's training curves to ``<run_dir>/training.png``.
 
     Raises:
         FileNotFoundError: the run has no ``logs/*/progress.csv``.
@@ -80,7 +80,7 @@ def plot_training(run_dir: str | Path, png: str | Path | None = None) -> Path:
         ax.axis("off")
     fig.suptitle(f"training: {run.name}", fontsize=10)
     fig.tight_layout()
-    out = Path(png) if png is not None else run / "training.png"
+    out = run / "training.png"
     partial = out.with_name(out.stem + ".partial.png")
     fig.savefig(partial, dpi=100)
     plt.close(fig)

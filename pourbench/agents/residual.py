@@ -51,10 +51,9 @@ class ResidualVecEnv(VecEnvWrapper):
         self._obs: Any = None  # the observations the PD acts on next (set by reset)
 
     def reset(self) -> np.ndarray:
-        obs = self.venv.reset()
+        self._obs = self.venv.reset()
         self.pd.reset()
-        self._obs = obs
-        return obs
+        return self._obs
 
     def step_async(self, actions: np.ndarray) -> None:
         self.venv.step_async(combine(self.pd.act(self._obs), actions, self.scale))

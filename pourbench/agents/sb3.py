@@ -140,9 +140,7 @@ class SB3PourVecEnv(VecEnv):
 
     def _all_worlds(self, what: str, indices: Any) -> None:
         """Refuse ``indices`` that are not every world: ``what`` acts on all of them."""
-        if indices is not None and sorted(set(self._indices(indices))) != list(
-            range(self.num_envs)
-        ):
+        if indices is not None and set(self._indices(indices)) != set(range(self.num_envs)):
             raise InvalidParameterError(
                 f"{what} acts on all {self.num_envs} worlds together; indices {indices!r} "
                 "are not supported (only None or every world; env_method('reset') takes any)"

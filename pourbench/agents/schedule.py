@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from pourbench.envs.curriculum import Lesson, lesson_at, load_curriculum
+from pourbench.envs.curriculum import lesson_at, load_curriculum
 from pourbench.errors import check_positive
 
 
@@ -25,7 +25,6 @@ class CurriculumCallback(BaseCallback):
     Args:
         progress: a function of the model's ``num_timesteps`` giving the progress in [0, 1]
             (past 1 stays in the last lesson); :func:`step_progress` for a budget of steps.
-        lessons: the curriculum (None: the shipped file's lessons).
         verbose: 1 prints each switch.
 
     Attributes:
@@ -33,15 +32,10 @@ class CurriculumCallback(BaseCallback):
         switches: ``(num_timesteps, lesson)`` of every switch, the first one included.
     """
 
-    def __init__(
-        self,
-        progress: Callable[[int], float],
-        lessons: tuple[Lesson, ...] | None = None,
-        verbose: int = 0,
-    ) -> None:
+    def __init__(self, progress: Callable[[int], float], verbose: int = 0) -> None:
         super().__init__(verbose)
         self.progress = progress
-        self.lessons = lessons if lessons is not None else load_curriculum()
+        self.lessons = load_curriculum()
         self.lesson = -1
         self.switches: list[tuple[int, int]] = []
 

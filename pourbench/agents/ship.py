@@ -24,9 +24,7 @@ from pourbench.errors import InvalidParameterError, PourbenchError
 from pourbench.outputs import write_text_atomic
 
 _NAME = re.compile(r"^[a-z0-9][a-z0-9-]*$")
-_STATE_KEYS = ("args", "timesteps", "train_s")
 _ARGS_KEYS = ("algorithm", "policy", "seed")
-_RESULT_KEYS = ("mean_abs_error_g", "policy", "random_mean_abs_error_g")
 
 
 def _read_run_json(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
@@ -79,7 +77,7 @@ def ship(
             f"{str(run)!r} is not a finished training run: no {', '.join(missing)}"
         )
     state_path, result_path = run / "state.json", run / "result.json"
-    state = _read_run_json(state_path, _STATE_KEYS)
+    state = _read_run_json(state_path, ("args", "timesteps", "train_s"))
     settings = state["args"]
     if not isinstance(settings, dict) or any(k not in settings for k in _ARGS_KEYS):
         raise InvalidParameterError(
@@ -91,7 +89,7 @@ def ship(
         raise InvalidParameterError(
             f"{str(state_path)!r}: 'history' must be a list of objects, got {sessions!r}"
         )
-    result = _read_run_json(result_path, _RESULT_KEYS)
+    result = _read_run_json(result_path, ("mean_abs_error_g", "policy", "random_mean_abs_error_g"))
     best = result.get("best")
     if best is not None and not isinstance(best, dict):
         raise InvalidParameterError(f"{str(result_path)!r}: 'best' must be an object, got {best!r}")
@@ -128,16 +126,13 @@ def ship(
     }
     out = Path(policy_dir)
     out.mkdir(parents=True, exist_ok=True)
-    zip_path = out / f"{name}.zip"
     partial = out / f"{name}.partial.zip"
     try:
         model.save(partial)
-        partial.replace(zip_path)
+        partial.replace(out / f"{name}.zip")
     finally:
         partial.unlink(missing_ok=True)
-    meta_path = out / f"{name}.json"
-    write_text_atomic(meta_path, json.dumps(meta, indent=2) + "\n")
-    return meta_path
+    return write_text_atomic(out / f"{name}.json", json.dumps(meta, indent=2) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:

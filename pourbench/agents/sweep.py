@@ -147,10 +147,8 @@ def load_sweep(path: str | Path) -> Sweep:
     for key, value in search.items():
         for candidate in _candidates(path, key, value):
             _check_train(path, f"search.{key}", {**train, key: candidate})
-    if (
-        math.prod(len(v) for v in search.values() if isinstance(v, list)) * head.get("samples", 1)
-        > 10_000
-    ):
+    grid = math.prod(len(v) for v in search.values() if isinstance(v, list))
+    if grid * head.get("samples", 1) > 10_000:
         raise _fail(path, "search", "more than 10,000 trials")
     sweep = Sweep(name=name, train=train, search=search, path=path,
                   **{k: head[k] for k in SWEEP_KEYS if k in head and k != "name"})  # fmt: skip

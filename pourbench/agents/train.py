@@ -408,13 +408,9 @@ def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, Any]:
     every = args.curriculum and args.warm_start_lessons == "all"
     lessons = list(range(len(load_curriculum()))) if every else []
     steps = -(-args.warm_start_steps // (args.num_envs * max(len(lessons), 1)))
-
-    def rollout(learner: Any = None) -> Any:
-        return lesson_rollout(env, steps, lessons, learner)
-
     total = steps * args.num_envs * max(len(lessons), 1)
     print(f"warm start: {total} steps of the PD baseline's demonstrations")
-    demos = rollout()
+    demos = lesson_rollout(env, steps, lessons)
     if args.residual:  # the PD itself is the residual policy's zero action
         demos = replace(demos, actions=np.zeros_like(demos.actions))
     print(
@@ -431,7 +427,7 @@ def _warm_start(model: Any, env: Any, args: TrainArgs) -> dict[str, Any]:
     }
     rounds: list[float] = []
     for k in range(1, args.dagger_rounds + 1):
-        new = rollout(learner=model)
+        new = lesson_rollout(env, steps, lessons, learner=model)
         rounds.append(new.mean_abs_error_g)
         demos = join(demos, new)
         print(

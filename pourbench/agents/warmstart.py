@@ -118,14 +118,13 @@ def clone(
     epochs: int,
     lr: float = 1e-3,
     seed: int = 0,
-    min_std: float = 0.1,
     std: float | None = None,
     progress: bool = False,
 ) -> dict[str, float]:
     """Fit ``model``'s policy (PPO or RecurrentPPO) to ``demos`` for ``epochs`` passes: the
     mean action's squared distance to the PD's plus half the value network's squared error
     on the returns of the episodes that ended; then set the policy's standard deviation to
-    the mean's root-mean-square residual per action dimension, at least ``min_std``, or to
+    the mean's root-mean-square residual per action dimension, at least 0.1, or to
     ``std`` when given. Returns the last epoch's mean action error (the squared distance,
     summed over the action, of the mean clipped to the action bounds), its value error and
     the standard deviation set (``std``, the mean over the action's dimensions).
@@ -199,7 +198,7 @@ def clone(
         stats = dict(zip(("action_mse", "value_mse"), sums / len(order), strict=True))
         bar.set_postfix(stats)
     # the last epoch's residual, per action dimension: the Gaussian's maximum-likelihood spread
-    std_set = (residual / max(count, 1)).sqrt().clamp(min=min_std)
+    std_set = (residual / max(count, 1)).sqrt().clamp(min=0.1)
     if std is not None:
         std_set = torch.full_like(std_set, std)
     with torch.no_grad():
@@ -223,9 +222,7 @@ def episode_batch(demos: Demonstrations, items: list[tuple[int, int, int]]) -> t
             out[row, : b - a] = src[a:b, k]
         return torch.as_tensor(out.reshape(len(items) * length, *src.shape[2:]))
 
-    valid = np.zeros((len(items), length), np.float32)
-    for row, (_, a, b) in enumerate(items):
-        valid[row, : b - a] = 1.0
+    valid = (np.arange(length) < np.array([[b - a] for _, a, b in items])).astype(np.float32)
     start = np.zeros((len(items), length), np.float32)
     start[:, 0] = 1.0
     fields = (demos.obs, demos.actions, demos.returns, demos.complete)

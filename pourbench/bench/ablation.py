@@ -64,13 +64,12 @@ def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
         if done["timesteps"] >= steps:
             print(f"ablation: {name} read back from {result}", file=sys.stderr)
             return done
-    n_steps = size.get("n_steps", 64)
     args = TrainArgs(
         algorithm=ALGORITHM,
         policy=POLICY,
         **VARIANTS[name],
         **size,
-        seq_len=n_steps,
+        seq_len=size.get("n_steps", 64),
         eval_every_steps=max(1, steps // 10),
         eval_episodes=1 if quick else 10,
         eval_liquid=EVAL_LIQUID,

@@ -58,15 +58,13 @@ def run_case(
     budget_s: float = 5.0,
     min_steps: int = 3,
     workers: int = 1,
-    baseline: bool = True,
 ) -> dict[str, Any]:
     """Time one case (at least ``min_steps`` environment steps and ``budget_s`` seconds);
     returns a leaderboard row. An episode that ends is reset, as a training loop does (the
-    vector env resets its worlds itself), and the resets count in the time. With
-    ``baseline``, the same worlds stepped by :class:`~pourbench.bench.env_baseline.
-    LoopedPourBatch` (the world-by-world step, in this process) alternate step by step with
-    the case, so both see the same machine load, until the baseline has had ``budget_s`` and
-    ``min_steps`` of its own."""
+    vector env resets its worlds itself), and the resets count in the time. The same worlds
+    stepped by :class:`~pourbench.bench.env_baseline.LoopedPourBatch` (the world-by-world
+    step, in this process) alternate step by step with the case, so both see the same
+    machine load, until the baseline has had ``budget_s`` and ``min_steps`` of its own."""
     from pourbench.envs import PourConfig, default_solver_config
     from pourbench.envs.pour_v0 import PourEnv
     from pourbench.envs.vector import PourVectorEnv
@@ -103,11 +101,10 @@ def run_case(
         if front_end == "single" and (terminated or truncated):
             env.reset()
 
-    looped = _Looped(worlds, PourConfig(solver=scfg)) if baseline else None
+    looped = _Looped(worlds, PourConfig(solver=scfg))
     for _ in range(2):
         step()
-        if looped is not None:
-            looped.step()
+        looped.step()
     steps, base_steps, s0, wall, base_wall = 0, 0, solver_s(), 0.0, 0.0
     while steps < min_steps or wall < budget_s:
         t0 = time.perf_counter()
@@ -116,7 +113,7 @@ def run_case(
         steps += 1
         # the baseline alternates with the case until it has had its own budget (where it is
         # far slower, as at thousands of CUDA worlds, it takes fewer steps)
-        if looped is not None and (base_steps < min_steps or base_wall < budget_s):
+        if base_steps < min_steps or base_wall < budget_s:
             t0 = time.perf_counter()
             looped.step()
             base_wall += time.perf_counter() - t0
@@ -124,7 +121,7 @@ def run_case(
     in_solver = solver_s() - s0
     count, grams = particles()
     env.close()
-    row = {
+    return {
         "front_end": front_end,
         "device": device,
         "worlds": worlds,
@@ -134,11 +131,9 @@ def run_case(
         "env_steps_per_s": worlds * steps / wall,
         "s_per_vector_step": wall / steps,
         "host_share": max(0.0, 1.0 - in_solver / (workers * wall)),
+        "baseline_env_steps_per_s": worlds * base_steps / base_wall,
+        "speedup_vs_baseline": (base_wall / base_steps) / (wall / steps),
     }
-    if looped is not None:
-        row["baseline_env_steps_per_s"] = worlds * base_steps / base_wall
-        row["speedup_vs_baseline"] = (base_wall / base_steps) / (wall / steps)
-    return row
 
 
 class _Looped:

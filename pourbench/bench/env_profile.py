@@ -64,7 +64,8 @@ def _timer(fn: Any, label: str, seconds: dict[str, float], calls: Counter) -> An
 
 
 def _make(worlds: int, graph: bool) -> tuple[Any, Any, np.ndarray]:
-    """(env, its PourBatch, action) with the env's default solver, graphs on or off."""
+    """(env, its PourBatch, action) with the env's default solver, graphs on or off, after
+    two warm-up steps."""
     from pourbench.envs import default_solver_config
     from pourbench.envs.pour_v0 import PourEnv
     from pourbench.envs.vector import PourVectorEnv
@@ -77,6 +78,8 @@ def _make(worlds: int, graph: bool) -> tuple[Any, Any, np.ndarray]:
         env = PourVectorEnv(worlds, workers=1, solver=scfg)
         action = np.tile(np.array(ACTION, np.float32), (worlds, 1))
     env.reset(seed=0)
+    for _ in range(2):
+        env.step(action)
     return env, env.unwrapped.batch if worlds == 1 else env.batch, action
 
 
@@ -99,8 +102,6 @@ def step_parts(worlds: int, steps: int) -> tuple[dict[str, float], dict[str, Any
     from pourbench.fluids import coupling, solver
 
     env, batch, action = _make(worlds, graph=True)
-    for _ in range(2):
-        env.step(action)
     S, B = solver.PBFSolver, core.PourBatch
     targets = {
         "solver kernels (graph replays)": (wp, "capture_launch"),
@@ -142,8 +143,6 @@ def kernel_times(worlds: int, steps: int) -> dict[str, tuple[float, float]]:
     from pourbench.fluids import step
 
     env, _, action = _make(worlds, graph=False)
-    for _ in range(2):
-        env.step(action)
     seconds: dict[str, float] = collections.defaultdict(float)
     calls: Counter = collections.Counter()
     launch = step.StepLaunches.launch

@@ -5,6 +5,7 @@ marble speeds and the closed form."""
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import sys
 import time
 from typing import Any
@@ -107,14 +108,8 @@ def falling_ball_check(device: str = "cpu") -> tuple[list[dict[str, Any]], str]:
                 "reynolds": r.reynolds,
             }
         )
-    terminal = np.array([r.terminal for r in results])
-    swapped = [
-        f"{a} / {b}"
-        for a, b, ta, tb in zip(
-            MARBLE_ORDER, MARBLE_ORDER[1:], terminal, terminal[1:], strict=False
-        )
-        if not ta > tb
-    ]
+    pairs = itertools.pairwise(zip(MARBLE_ORDER, [r.terminal for r in results], strict=True))
+    swapped = [f"{a} / {b}" for (a, ta), (b, tb) in pairs if not ta > tb]
     order = "yes" if not swapped else "no: " + ", ".join(swapped)
     note = (
         "Table 3.4's liquids as shipped: a glass sphere of 1.5 cm radius (three spacings; "

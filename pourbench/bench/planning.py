@@ -128,7 +128,6 @@ def make_tasks(robot: str, quick: bool = False) -> list[Task]:
     q0 = kin.home()
     p0, x0 = kin.ee_pose(q0)
     none: Callable[[float], list[Obstacle]] = lambda t: []  # noqa: E731
-    tasks: list[Task] = []
     box = Box(p0 + np.array([0.05, -0.2, 0.02]), [0.10, 0.03, 0.10])
     goal_iii = (p0 + np.array([0.0, -0.4, -0.1]), x0)
     t3 = Task("iii", robot, arm, [goal_iii], lambda t: [box], SAFETY, (*ONLINE, *OFFLINE))
@@ -293,9 +292,8 @@ def _run_online(task: Task, planner_name: str) -> dict:
     planner = _nmpc(arm, task, hess) if hess else _mink(arm, task)
     q = task.q0.copy()
     segs = []
-    t_now = 0.0
+    t_start = 0.0
     for goal in task.goals:
-        t_start = t_now
 
         def obs_at(step: int, t_start=t_start) -> list[Obstacle]:
             moving = task.obstacles(t_start + step * TS)
@@ -315,7 +313,7 @@ def _run_online(task: Task, planner_name: str) -> dict:
         segs.append(_segment_record(arm.kin, run.qs, goal, run.solve_times, run.iterations,
                                     run.success, clear, speed))  # fmt: skip
         q = run.qs[-1]
-        t_now += len(run.us) * TS
+        t_start += len(run.us) * TS
     return _metrics_rows(segs)
 
 
@@ -337,9 +335,8 @@ def _run_dual(task: Task, planner_name: str) -> dict:
         for i in (0, 1):  # the other arm at its current pose is an obstacle
             a, other = arms[i], arms[1 - i]
             a.kin.base_qpos[other.kin.qadr] = cur[1 - i]
-            base = a.kin.base_qpos.copy()
             if hasattr(planners[i], "base_qpos"):
-                planners[i].base_qpos = base
+                planners[i].base_qpos = a.kin.base_qpos.copy()
         new = []
         for i in (0, 1):
             a = arms[i]
@@ -542,8 +539,7 @@ def run(args: argparse.Namespace) -> int:
                     res = _run_online(task, planner)
                 else:
                     res = _run_offline(task, planner, prm_time)
-                row = {"robot": robot, "task": task.key, "planner": planner, **res}
-                rows.append(row)
+                rows.append({"robot": robot, "task": task.key, "planner": planner, **res})
                 _log(
                     f"[planning]   success {res['success_rate']:.2f}, length "
                     f"{res['avg_normalized_length']:.3f}, time/call {res['avg_time_s']:.4f} s, "

@@ -97,11 +97,9 @@ def describe(name: str) -> str:
         start = "from scratch"
     if cfg.get("sde"):
         start += ", exploring with gSDE"
-    reward = "Algorithm 5" + (
-        f" + {cfg['final_error_per_g']:g} per gram of final error"
-        if cfg.get("final_error_per_g")
-        else ""
-    )
+    reward = "Algorithm 5"
+    if cfg.get("final_error_per_g"):
+        reward += f" + {cfg['final_error_per_g']:g} per gram of final error"
     parts = [
         f"{meta['algorithm']} ({meta['policy']})",
         f"{meta['steps']} steps in {meta['wall_time_s']:.0f} s on {cfg['num_envs']} worlds",

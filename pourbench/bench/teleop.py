@@ -174,9 +174,7 @@ class Job:
         return feeding_demos(self.label, 1, seed=SEED, start=5 + self.rep)[0].points
 
 
-# Calibration of the invariant recognition (our addition): one held-out demonstration per
-# letter (index 20, never an operator) under each distinct kind of variation it must absorb
-# (translations change no feature, so they are represented by the identical copy).
+# what the calibration copies a letter under (a translation changes no feature)
 CALIBRATION_VARIATIONS = tuple(v for v in VARIATIONS_2D if v.cls != "translated")
 
 
@@ -298,7 +296,7 @@ def _time_paths(
                 best = min(best, time.perf_counter() - t0)
             assert res is not None
             times.append(best)
-            if not ref or len(ref) <= i:
+            if len(ref) <= i:
                 ref.append(res.points)
             devs.append(float(np.max(np.linalg.norm(res.points - ref[i], axis=1))))
             fgt_frac.append(res.fgt_steps / max(res.iterations, 1))
@@ -496,12 +494,11 @@ def _run(args: argparse.Namespace, pinned: str) -> int:
         {L: [d.points for d in letter_demos(L, 10, seed=SEED)] for L in known}
     )
     lib21.calibrate(_calibration_demos(known), invariant=True)
-    op = OPERATORS[0]
     for L in LETTERS:
         cls = OPEN_SET_CLASSES[L in UNKNOWN_LETTERS]
         for rep in range(reps if L in UNKNOWN_LETTERS else 1):
             for var in variations:
-                jobs.append(Job(op, "2d", L, rep, var, cls, lib21))
+                jobs.append(Job(OPERATORS[0], "2d", L, rep, var, cls, lib21))
     rows: list[dict[str, Any]] = []
     timing_cases: list[tuple[np.ndarray, np.ndarray]] = []
     switch_cases: list[tuple[np.ndarray, np.ndarray, SkillCPDConfig]] = []
@@ -647,7 +644,6 @@ def _run(args: argparse.Namespace, pinned: str) -> int:
             "was the right one.",
         ]
     )
-    detail_rows = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
     extra = {
         "quick": quick,
         "seed": SEED,
@@ -671,7 +667,7 @@ def _run(args: argparse.Namespace, pinned: str) -> int:
     if not getattr(args, "no_write", False):
         paths = write_report(
             "teleop",
-            detail_rows,
+            rows,
             out=getattr(args, "out", "leaderboard"),
             title="Teleoperation: Skill-CPD under network drops",
             body_md=body,
@@ -682,7 +678,7 @@ def _run(args: argparse.Namespace, pinned: str) -> int:
         )
         print(f"teleop: wrote {paths[0]}, {paths[1]} and {png}", file=log)
     if getattr(args, "json", False):
-        print(json.dumps({"suite": "teleop", **extra, "rows": detail_rows}, default=str))
+        print(json.dumps({"suite": "teleop", **extra, "rows": rows}, default=str))
     else:
         print(markdown_table(summary, cols), file=log)
     return 0

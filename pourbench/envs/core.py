@@ -33,7 +33,7 @@ import numpy as np
 import warp as wp
 from gymnasium.error import ResetNeeded
 
-from pourbench.containers import Container, container_names, get_container
+from pourbench.containers import Container, add_container_body, container_names, get_container
 from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, as_actions, handle_actions
 from pourbench.envs.curriculum import Lesson, draw_liquid, load_curriculum
 from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
@@ -89,18 +89,23 @@ def particle_grams(liquid: LiquidProfile, spacing: float) -> float:
     return liquid.density * spacing**3 * 1e3
 
 
+def container_capacity_g(container: str, density: float, spacing: float) -> float:
+    """Liquid (g) of ``density`` (kg/m³) the container holds at particle ``spacing`` (m)."""
+    n = len(container_lattice(get_container(container).shape, spacing))  # cached
+    return n * spacing**3 * 1e3 * density
+
+
 def draw_amounts(
     opts: ResetOptions,
     rng: np.random.Generator,
     cfg: PourConfig,
     liquid: LiquidProfile,
     container: str,
-    capacity_g: float,
     spacing: float,
 ) -> tuple[float, float]:
     """An episode's (target_g, initial_g): from reset ``opts`` or drawn from ``cfg``'s ranges,
     checked against one particle's mass (at ``spacing``, m) and 85 % of the pouring
-    container's ``capacity_g`` for ``liquid``."""
+    container's capacity for ``liquid``."""
     target = opts.target_g
     if target is None:  # drawn, at most the initial amount asked for
         low, high = cfg.target_range_g
@@ -118,7 +123,7 @@ def draw_amounts(
             f"target_g={target:g} g is less than one particle of {liquid.name} "
             f"({particle_g:.3g} g at {spacing * 1e3:g} mm spacing)"
         )
-    cap = 0.85 * capacity_g
+    cap = 0.85 * container_capacity_g(container, liquid.density, spacing)
     holds = (
         f"container {container!r} holds {cap:.0f} g of {liquid.name} at "
         f"{liquid.density:.0f} kg/m^3 (85 % of its capacity)"
@@ -394,10 +399,6 @@ class PourBatch:
     container reads when that reaction is applied to it). MuJoCo holds the model; a world's
     ``MjData`` is made on demand (:meth:`world_data`) for rendering and collision checks.
 
-    Args:
-        num_worlds: number of worlds.
-        config: task settings.
-
     Raises:
         CapacityError: the worlds' estimated memory (:func:`estimate_memory`) exceeds what
             the machine has free; nothing is allocated.
@@ -419,8 +420,6 @@ class PourBatch:
         self._check_draws()
         # MuJoCo: the first candidate is body "pouring", the others "pouring_<name>"
         scene = build_pour_scene(pouring=self.candidates[0], receiving=cfg.receiving)
-        from pourbench.containers import add_container_body
-
         for name in self.candidates[1:]:
             add_container_body(
                 scene.spec, scene.spec.worldbody, name, name=f"pouring_{name}", mocap=True
@@ -546,17 +545,13 @@ class PourBatch:
 
     def capacity_g(self, container: str, density: float) -> float:
         """Liquid (g) of ``density`` (kg/m³) the container holds at the solver's spacing."""
-        spacing = self.solver_config.spacing
-        n = len(container_lattice(get_container(container).shape, spacing))  # cached
-        return n * spacing**3 * 1e3 * density  # g
+        return container_capacity_g(container, density, self.solver_config.spacing)
 
     def pouring_poses(self, worlds: np.ndarray | list[int] | None = None) -> np.ndarray:
         """Poses (k, 7; m) of ``worlds``' pouring containers (None: all):
         the base's position, tilted by ``tilt`` about the y axis through the rim's centre,
         height ``rim_height`` above the base."""
-        if worlds is None:
-            return _rim_poses(self.base, self.tilt, self.rim_height)
-        w = np.asarray(worlds, int)
+        w = slice(None) if worlds is None else np.asarray(worlds, int)
         return _rim_poses(self.base[w], self.tilt[w], self.rim_height[w])
 
     def _place(self, worlds: list[int] | None = None) -> None:
@@ -630,10 +625,7 @@ class PourBatch:
             name = fits[int(rng.integers(len(fits)))]
         elif name not in self.candidates:
             refuse_container(name, self.candidates)
-        target, initial = draw_amounts(
-            opts, rng, cfg, liquid, name, self.capacity_g(name, liquid.density),
-            self.solver_config.spacing,
-        )  # fmt: skip
+        target, initial = draw_amounts(opts, rng, cfg, liquid, name, self.solver_config.spacing)
         start = opts.start
         if start is None:
             xy = [rng.uniform(*cfg.start_x), rng.uniform(*cfg.start_y)]
@@ -968,8 +960,6 @@ def estimate_memory(num_worlds: int, config: PourConfig | None = None) -> tuple[
 def available_memory(device: str = "cpu") -> int:
     """Free memory (bytes) of the host (``"cpu"``) or of a CUDA device."""
     if device != "cpu":
-        import warp as wp
-
         return int(wp.get_device(device).free_memory)
     try:
         with open("/proc/meminfo") as f:

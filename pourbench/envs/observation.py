@@ -52,7 +52,6 @@ class WeightFilter:
     """Batched tared, noisy, low-passed weight (g) of ``num_worlds`` force sensors.
 
     Args:
-        num_worlds: number of worlds.
         rate_hz: sampling rate, Hz.
         cutoff_hz: low-pass cut-off, Hz.
         order: Butterworth order.

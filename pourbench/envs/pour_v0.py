@@ -230,11 +230,8 @@ class PourEnv(gym.Env):
 
 
 def _world_info(info: dict[str, np.ndarray], w: int) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in info.items():
-        x = v[w]
-        out[k] = x.item() if isinstance(x, np.generic) else x
-    return out
+    """World ``w``'s entries of a batch's info, numpy scalars as Python ones."""
+    return {k: v[w].item() if isinstance(v[w], np.generic) else v[w] for k, v in info.items()}
 
 
 def render_world(batch: PourBatch, world: int, renderer: mujoco.Renderer) -> np.ndarray:

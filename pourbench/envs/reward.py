@@ -65,7 +65,6 @@ def extrinsic_reward(
         average_error_g: (n,) running average error over the last n completed episodes,
             including this one where ``finished``, g.
         max_steps: episode step limit.
-        config: the constants.
         timed_out: (n,) the episode reached the step limit this step without another end
             (charged its final error by ``final_error_per_g``; Algorithm 5 gives it nothing).
     """

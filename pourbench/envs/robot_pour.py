@@ -66,7 +66,6 @@ from gymnasium.error import ResetNeeded
 from pourbench.containers import get_container
 from pourbench.envs.action_handler import as_actions, handle_actions
 from pourbench.envs.core import (
-    PourConfig,
     control_substeps,
     default_solver_config,
     draw_amounts,
@@ -84,7 +83,7 @@ from pourbench.envs.options import ResetOptions, known_liquid
 from pourbench.envs.pour_v0 import (
     RENDER_SIZE,
     action_space,
-    check_settings,
+    make_config,
     observation_space,
     render_scene,
 )
@@ -99,7 +98,6 @@ from pourbench.errors import (
 )
 from pourbench.fluids import MujocoCoupling, PBFSolver
 from pourbench.fluids.accounting import LiquidCounter
-from pourbench.geometry.fill import container_lattice
 from pourbench.geometry.rotation import (
     axis_angle_quat,
     quat_conj,
@@ -113,7 +111,7 @@ from pourbench.planners import (
     PlanningWorld,
     arm_spec,
 )
-from pourbench.planners.distance import Box, obstacle_from_mujoco_geom
+from pourbench.planners.distance import Box, Obstacle, obstacle_from_mujoco_geom
 from pourbench.planners.kinematics import ArmKinematics
 from pourbench.planners.robots import joint_speed_limits
 from pourbench.scene import ROBOTS, STATIC_CONTYPE, body_clearance, build_pour_scene
@@ -198,7 +196,6 @@ class RobotPourEnv(gym.Env):
     Args:
         robot: "movo" (default) or "panda".
         planner: "nmpc" (default) or "mink".
-        settings: robot-in-the-loop settings.
         render_mode: None or "rgb_array" (MuJoCo's offscreen renderer: the robot, the
             containers, translucent, and the liquid's particles as spheres).
         record_path: if given, a rerun ``.rrd`` recording of the episode, one frame per
@@ -234,8 +231,7 @@ class RobotPourEnv(gym.Env):
             raise InvalidParameterError(
                 f"render_mode must be None or 'rgb_array', got {render_mode!r}"
             )
-        check_settings(kwargs)
-        cfg = PourConfig(**kwargs)
+        cfg = make_config(**kwargs)
         self.default_liquid = None if cfg.liquid is None else known_liquid(cfg.liquid)
         self.settings = settings or RobotSettings()
         self.robot, self.planner_name, self.config = robot, planner, cfg
@@ -348,25 +344,20 @@ class RobotPourEnv(gym.Env):
     def _obstacles(self) -> list:
         """Planner obstacles: body boxes and the other arm (Movo), the table top, and a box
         around the receiving container (all still during an episode)."""
-        m, d = self.model, self.data
         geoms = [*self.arm.body_boxes, *self.arm.other_capsules]
-        out = []
-        for g in geoms:
-            gid = m.geom(g).id
-            out.append(
-                obstacle_from_mujoco_geom(
-                    int(m.geom_type[gid]), d.geom_xpos[gid], d.geom_xmat[gid], m.geom_size[gid]
-                )
-            )
-        return out + self._dynamic_obstacles()
+        return [self._geom_obstacle(g) for g in geoms] + self._dynamic_obstacles()
+
+    def _geom_obstacle(self, name: str) -> Obstacle:
+        """The planner obstacle of MuJoCo geom ``name`` where it is now."""
+        m, d = self.model, self.data
+        g = m.geom(name).id
+        return obstacle_from_mujoco_geom(
+            int(m.geom_type[g]), d.geom_xpos[g], d.geom_xmat[g], m.geom_size[g]
+        )
 
     def _dynamic_obstacles(self) -> list:
         """The obstacles that are not robot geoms: table top and receiving container."""
-        m, d = self.model, self.data
-        t = m.geom("table_top").id
-        table = obstacle_from_mujoco_geom(
-            int(m.geom_type[t]), d.geom_xpos[t], d.geom_xmat[t], m.geom_size[t]
-        )
+        table = self._geom_obstacle("table_top")
         r = self.recv.diameter / 2
         h = self.recv.rim_height
         tray = Box(self.origin + np.array([0.0, 0.0, h / 2]), np.array([r, r, h / 2]))
@@ -390,12 +381,6 @@ class RobotPourEnv(gym.Env):
         tilt = 2.0 * np.arctan2(float(rel[1:] @ self.tilt_axis), rel[0])
         return p, float(tilt), q
 
-    def capacity_g(self, density: float) -> float:
-        """Liquid (g) of ``density`` (kg/m³) the pouring container holds at the solver's
-        spacing."""
-        s = self.solver_config.spacing
-        return len(container_lattice(self.pour.shape, s)) * s**3 * 1e3 * density
-
     # ------------------------------------------------------------------ reset
 
     def reset(
@@ -410,10 +395,8 @@ class RobotPourEnv(gym.Env):
         liquid = opts.liquid if opts.liquid is not None else self.default_liquid
         if liquid is None:
             liquid = draw_liquid(self.lessons, self.lesson, rng, cfg.rehearse)
-        target, initial = draw_amounts(
-            opts, rng, cfg, liquid, self.container, self.capacity_g(liquid.density),
-            self.solver_config.spacing,
-        )  # fmt: skip
+        spacing = self.solver_config.spacing
+        target, initial = draw_amounts(opts, rng, cfg, liquid, self.container, spacing)
         start = opts.start
         if start is None:
             xy = [rng.uniform(*cfg.start_x), rng.uniform(*cfg.start_y)]

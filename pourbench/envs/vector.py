@@ -203,10 +203,7 @@ class PourVectorEnv(VectorEnv):
         # observation of the new episode
         same = self.autoreset_mode == AutoresetMode.SAME_STEP
         answers = self._all("step", self._split(a), self._split(resetting), shared=(same,))
-        obs = np.concatenate([r[0] for r in answers])
-        rew = np.concatenate([r[1] for r in answers])
-        term = np.concatenate([r[2] for r in answers])
-        trunc = np.concatenate([r[3] for r in answers])
+        obs, rew, term, trunc = (np.concatenate([r[j] for r in answers]) for j in range(4))
         info = _concat([r[4] for r in answers])
         infos = self._info(info, np.ones(self.num_envs, bool))
         done = term | trunc
@@ -266,7 +263,7 @@ class PourVectorEnv(VectorEnv):
         self._closer()
 
 
-_START_TIMEOUT_S = 600.0
+_START_TIMEOUT_S = 600.0  # a worker that has not built its worlds by then is stopped
 
 
 def _close_groups(groups: list[LocalGroup | RemoteGroup]) -> None:

@@ -17,6 +17,7 @@ holds it.
 
 from __future__ import annotations
 
+import itertools
 import os
 import pickle
 import socket
@@ -27,12 +28,13 @@ from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from pourbench.envs.core import PourBatch, PourConfig, ResetDraw
 from pourbench.envs.options import ResetOptions
+from pourbench.envs.pour_v0 import RENDER_SIZE, render_world
 
-_START_TIMEOUT_S = 600.0  # a worker that has not built its worlds by then is stopped
 _CLOSE_TIMEOUT_S = 10.0
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 _WORKER_MAIN = (
@@ -119,10 +121,6 @@ class WorldGroup:
 
     def render(self) -> list[np.ndarray]:
         """One RGB image per world."""
-        import mujoco
-
-        from pourbench.envs.pour_v0 import RENDER_SIZE, render_world
-
         if getattr(self, "_renderer", None) is None:
             self._renderer = mujoco.Renderer(self.batch.model, *RENDER_SIZE, max_geom=20000)
         return [render_world(self.batch, w, self._renderer) for w in range(self.batch.n)]
@@ -175,8 +173,6 @@ class RemoteGroup:
     Args:
         index: the worker's number (for messages).
         first: index of its first world in the vector env (for messages).
-        num_worlds: how many worlds it holds.
-        config: the task settings.
     """
 
     def __init__(self, index: int, first: int, num_worlds: int, config: PourConfig) -> None:
@@ -196,7 +192,6 @@ class RemoteGroup:
         finally:
             theirs.close()
         self.conn = Connection(ours.detach())
-        self._pending = False
         self.conn.send((num_worlds, config))
         self._pending = True
 
@@ -305,9 +300,5 @@ def default_workers(num_envs: int) -> int:
 def split(num_envs: int, workers: int) -> list[tuple[int, int]]:
     """``workers`` contiguous (first, count) groups of ``num_envs`` worlds, sizes within one."""
     base, extra = divmod(num_envs, workers)
-    out, first = [], 0
-    for i in range(workers):
-        count = base + (1 if i < extra else 0)
-        out.append((first, count))
-        first += count
-    return out
+    counts = [base + (1 if i < extra else 0) for i in range(workers)]
+    return list(zip(itertools.accumulate(counts[:-1], initial=0), counts, strict=True))

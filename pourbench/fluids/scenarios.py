@@ -89,26 +89,22 @@ def two_cup_scene(
     mass_g: float = 200.0,
     num_worlds: int = 1,
     config: SolverConfig | None = None,
-    source: RevolvedShell | None = None,
-    target: RevolvedShell | None = None,
-    lift: float = 0.01,
-    overlap: float = 0.04,
     target_g: float = 0.0,
 ) -> PourScene:
     """Build the scene; fill the source cup with ``mass_g`` (and the target with ``target_g``)
     grams of ``liquid`` in every world (or of ``liquid[w]`` in world ``w``).
 
-    The source cup's pouring lip sits ``lift`` m above the target's rim and ``overlap`` m
-    inside its mouth, so tilting about the lip pours into the target.
+    The source cup's pouring lip sits 1 cm above the target's rim and 4 cm inside its mouth,
+    so tilting about the lip pours into the target.
     """
     check_finite("mass_g", mass_g, minimum=0.0)
     check_finite("target_g", target_g, minimum=0.0)
     config = config or SolverConfig()
-    source = source or cup(0.04, 0.08)
-    target = target or cup(0.10, 0.06)  # the thesis' receiving tray has a 10 cm radius
+    source = cup(0.04, 0.08)
+    target = cup(0.10, 0.06)  # the thesis' receiving tray has a 10 cm radius
     lip_x = source.outer_radius
-    tx = lip_x + target.mouth_radius - overlap
-    sz = target.rim_height + lift
+    tx = lip_x + target.mouth_radius - 0.04
+    sz = target.rim_height + 0.01
     xml = _MJCF.format(
         dt=repr(config.dt), g=GRAVITY, tx=tx, tr=target.outer_radius, sz=sz, sr=source.outer_radius
     )

@@ -11,10 +11,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
+from scipy.special import jn_zeros
 
 from pourbench.errors import InvalidParameterError
 from pourbench.fluids.config import SolverConfig
+from pourbench.fluids.coupling import MujocoCoupling
+from pourbench.fluids.falling_ball import terminal_speed
 from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.scenarios import GRAVITY, tilt_schedule, two_cup_scene
 from pourbench.fluids.solver import PBFSolver
@@ -204,10 +208,6 @@ def floating_box(
     every wall; with it, still at the box's edges and corners), the box sits deeper than
     ``archimedes``.
     """
-    import mujoco
-
-    from pourbench.fluids.coupling import MujocoCoupling
-
     half, half_h, water_g, margin = 0.03, 0.02, 500.0, 0.005
     mass = body_density * (2 * half) ** 2 * 2 * half_h
     cfg = SolverConfig(device=device)
@@ -394,8 +394,6 @@ def spin_down(
     under a free surface. That is separable: Σ_n (8/λ_n²) exp(−ν λ_n² t / R²), λ_n the roots
     of J₁ (a rigid rotation's Fourier–Bessel series), times Σ_m 8/((2m−1)² π²)
     exp(−ν ((2m−1) π / 2L)² t) (the floor's sine series, L the depth)."""
-    from scipy.special import jn_zeros
-
     cfg = config or SolverConfig()
     s = PBFSolver(1, cfg)
     shape = cup(radius, 2.5 * radius, wall=0.006)
@@ -502,11 +500,6 @@ def falling_ball(
     Brenner's factor is 1 + 9R/8z to first order, 1.2 there); its three thirds in time give
     ``speeds``. The closed form is Stokes' drag with the cylinder's Haberman–Sayre factor and
     the Schiller–Naumann inertia term (:func:`pourbench.fluids.falling_ball.terminal_speed`)."""
-    import mujoco
-
-    from pourbench.fluids.coupling import MujocoCoupling
-    from pourbench.fluids.falling_ball import terminal_speed
-
     cfg = config or SolverConfig()
     n = len(liquids)
     mass = ball_density * 4.0 / 3.0 * math.pi * radius**3

@@ -118,7 +118,6 @@ class ArmKinematics:
     model has one, else ``qpos0``).
 
     Args:
-        model: the compiled MuJoCo model.
         joint_names: the arm's hinge or slide joints, in planning order.
         ee_site: name of the end-effector site.
         collision_geoms: names of capsule or cylinder geoms that represent the arm for
@@ -170,7 +169,6 @@ class ArmKinematics:
         self.base_qpos = check_array("base_qpos", base_qpos, (model.nq,)).copy()
         self._jacp = np.zeros((3, model.nv))
         self._jacr = np.zeros((3, model.nv))
-        self._quat = np.zeros(4)
 
     def _id(self, obj: mujoco.mjtObj, kind: str, name: str) -> int:
         i = mujoco.mj_name2id(self.model, obj, name)
@@ -229,24 +227,13 @@ class ArmKinematics:
         Raises:
             InvalidParameterError: ``qs`` has the wrong shape or is not finite.
         """
-        try:
-            qs = np.asarray(qs, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise InvalidParameterError(f"configurations must be numbers, got {qs!r}") from exc
-        if qs.ndim != 2 or qs.shape[1] != self.n:
-            raise InvalidParameterError(
-                f"configurations must have shape (T, {self.n}), got {qs.shape}"
-            )
-        if not np.all(np.isfinite(qs)):
-            raise InvalidParameterError("configurations must be finite")
+        qs = check_array("configurations", qs, (None, self.n))
         m, d = self.model, self.data
         T, n, K = qs.shape[0], self.n, self.num_capsules
         ee_pos = np.empty((T, 3))
         ee_quat = np.empty((T, 4))
         jac_pos = np.zeros((T, 3, n))
         jac_rot = np.zeros((T, 3, n))
-        seg_a = np.empty((T, K, 3))
-        seg_b = np.empty((T, K, 3))
         body_pos = np.empty((T, K, 3))
         body_jacp = np.zeros((T, K, 3, n))
         body_jacr = np.zeros((T, K, 3, n))
@@ -254,13 +241,12 @@ class ArmKinematics:
         gids, bids = self.geom_ids, self.geom_body
         gpos = np.empty((T, K, 3))
         gaxis = np.empty((T, K, 3))
-        site_mat = np.empty((T, 9))
         jacp, jacr, dadr = self._jacp, self._jacr, self.dadr
         for t in range(T):
             d.qpos[self.qadr] = qs[t]
             mujoco.mj_kinematics(m, d)
             ee_pos[t] = d.site_xpos[self.site_id]
-            site_mat[t] = d.site_xmat[self.site_id]
+            mujoco.mju_mat2Quat(ee_quat[t], d.site_xmat[self.site_id])
             if K:
                 gpos[t] = d.geom_xpos[gids]
                 gaxis[t] = d.geom_xmat[gids][:, 2::3]  # z axis: third column of row-major xmat
@@ -274,13 +260,9 @@ class ArmKinematics:
                     mujoco.mj_jacBody(m, d, jacp, jacr, bids[k])
                     body_jacp[t, k] = jacp[:, dadr]
                     body_jacr[t, k] = jacr[:, dadr]
-        for t in range(T):
-            mujoco.mju_mat2Quat(self._quat, site_mat[t])
-            ee_quat[t] = self._quat
-        if K:
-            half = self.half_length[None, :, None]
-            seg_a[:] = gpos - half * gaxis
-            seg_b[:] = gpos + half * gaxis
+        half = self.half_length[None, :, None]
+        seg_a = gpos - half * gaxis
+        seg_b = gpos + half * gaxis
         return ArmState(
             q=qs.copy(),
             ee_pos=ee_pos,

@@ -55,7 +55,6 @@ class MinkController:
     Args:
         world: the robot with its obstacles (MuJoCo geoms).
         joints: the planned arm's joints.
-        ee_site: end-effector site.
         robot_geoms: the arm's collision geoms.
         ts: control period (s).
         safety_distance: minimum distance kept by the collision-avoidance limit (m).

@@ -29,11 +29,12 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 import qpsolvers
+from scipy.linalg import block_diag
 
 from pourbench.errors import (
     InvalidParameterError,
@@ -178,17 +179,8 @@ def quat_jacobian(quat: np.ndarray, jac_rot: np.ndarray) -> np.ndarray:
     """
     w = quat[..., 0]
     p = quat[..., 1:]
-    x, y, z = p[..., 0], p[..., 1], p[..., 2]
-    zero = np.zeros_like(w)
-    skew = np.stack(
-        [
-            np.stack([zero, -z, y], -1),
-            np.stack([z, zero, -x], -1),
-            np.stack([-y, x, zero], -1),
-        ],
-        -2,
-    )
-    lower = w[..., None, None] * np.eye(3) - skew
+    # w I − p× = w I + (p×)ᵀ, whose rows are p × e_k
+    lower = w[..., None, None] * np.eye(3) + np.cross(p[..., None, :], np.eye(3))
     top = -p[..., None, :]
     Mq = np.concatenate([top, lower], axis=-2)  # (..., 4, 3)
     return 0.5 * Mq @ jac_rot
@@ -210,7 +202,6 @@ class _Eval:
     f: float
     grad: np.ndarray
     Jr: np.ndarray
-    r: np.ndarray
     ee_pos: np.ndarray
     sd: np.ndarray  # (P,) flattened over (ph, K, L)
     dsd: np.ndarray  # (P, nU)
@@ -226,10 +217,7 @@ class _Problem:
     goal_quat: np.ndarray
     obstacles: Sequence[Obstacle]
     ee0: np.ndarray
-    Pi: np.ndarray = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.Pi = quat_error_matrix(self.goal_quat)
+    Pi: np.ndarray  # Π_d of the goal
 
 
 class NMPCPlanner:
@@ -278,13 +266,7 @@ class NMPCPlanner:
         self.sqrt_rbar = np.repeat(np.sqrt(rbar), n)
         self.lim = np.flatnonzero(np.isfinite(kin.lower) | np.isfinite(kin.upper))
         # Linear rows for joint-position limits: A_lin U gives ts Σ_j M[i,j] u_j[lim].
-        rows = []
-        for i in range(c.ph):
-            for jj in self.lim:
-                row = np.zeros((c.ch, n))
-                row[:, jj] = self.TsM[i]
-                rows.append(row.reshape(-1))
-        self.A_lin = np.array(rows) if rows else np.zeros((0, self.nU))
+        self.A_lin = np.kron(self.TsM, np.eye(n)[self.lim])
         self._U_prev: np.ndarray | None = None
 
     # ----------------------------------------------------------------- public API
@@ -317,9 +299,8 @@ class NMPCPlanner:
         """
         t_start = time.perf_counter()
         c = self.config
-        q0, goal_pos, goal_quat, obstacles = self._check_problem(q0, goal_pos, goal_quat, obstacles)
-        prob = _Problem(q0, goal_pos, goal_quat, obstacles, self.kin.forward(q0).ee_pos[0])
-        lo, hi = self._limit_bounds(q0)
+        prob = self._problem(q0, goal_pos, goal_quat, obstacles)
+        lo, hi = self._limit_bounds(prob.q0)
 
         if c.warm_start and self._U_prev is not None:
             U0 = np.concatenate([self._U_prev[self.n :], self._U_prev[-self.n :]])
@@ -347,13 +328,16 @@ class NMPCPlanner:
             status=status,
         )
 
-    def _check_problem(self, q0, goal_pos, goal_quat, obstacles):
-        """Validated (q0, goal_pos, unit goal_quat, obstacles) of one problem."""
+    def _problem(self, q0, goal_pos, goal_quat, obstacles) -> _Problem:
+        """The validated problem (``goal_quat`` normalised)."""
         flat = lambda v: np.ravel(v) if isinstance(v, np.ndarray) else v  # noqa: E731  (n, 1) too
         q0 = check_array("q0", flat(q0), (self.n,))
         goal_pos = check_array("goal_pos", flat(goal_pos), (3,))
         goal_quat = check_quat("goal_quat", flat(goal_quat))
-        return q0, goal_pos, goal_quat / np.linalg.norm(goal_quat), check_obstacles(obstacles)
+        goal_quat = goal_quat / np.linalg.norm(goal_quat)
+        obstacles = check_obstacles(obstacles)
+        ee0 = self.kin.forward(q0).ee_pos[0]
+        return _Problem(q0, goal_pos, goal_quat, obstacles, ee0, quat_error_matrix(goal_quat))
 
     # ----------------------------------------------------- evaluation (f, ∇f, g, ∇g)
     def _limit_bounds(self, q0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -428,7 +412,6 @@ class NMPCPlanner:
             f=f,
             grad=gradf,
             Jr=Jr,
-            r=r,
             ee_pos=np.vstack([prob.ee0[None, :], st.ee_pos]),
             sd=sd,
             dsd=dsd,
@@ -449,24 +432,18 @@ class NMPCPlanner:
         Raises:
             InvalidParameterError: as :meth:`plan`, or ``U`` is not ``ch·n`` finite numbers.
         """
-        q0, goal_pos, goal_quat, obstacles = self._check_problem(q0, goal_pos, goal_quat, obstacles)
+        prob = self._problem(q0, goal_pos, goal_quat, obstacles)
         U = check_array("U", U, (self.nU,))
-        prob = _Problem(q0, goal_pos, goal_quat, obstacles, self.kin.forward(q0).ee_pos[0])
         lo, hi = self._limit_bounds(prob.q0)
         ev = self._evaluate(prob, U, lo, hi)
         return ev.f, ev.grad, ev.sd, ev.dsd
 
     # ------------------------------------------------------------------- QP solve
     def _solve_qp(
-        self,
-        H: np.ndarray,
-        g: np.ndarray,
-        ev: _Eval,
-        prob: _Problem,
-        elastic: bool,
-        rows: np.ndarray,
+        self, H: np.ndarray, g: np.ndarray, ev: _Eval, rows: np.ndarray, elastic: bool = False
     ) -> tuple[np.ndarray, np.ndarray] | None:
-        """Solve the QP subproblem; returns (d, multipliers of the selected sd rows)."""
+        """Solve the QP subproblem, again in elastic mode when that fails (e.g. infeasible
+        linearised constraints); returns (d, multipliers of the selected sd rows), or None."""
         c = self.config
         umax = np.tile(self.u_max, c.ch)
         lb, ub = -umax - ev.U, umax - ev.U
@@ -484,16 +461,11 @@ class NMPCPlanner:
         if elastic and m:
             # One shared slack s ≥ 0 on the distance rows (ℓ∞ elastic mode):
             # −∇sd d − s ≤ sd − TH, extra cost ρ s + ½ s². Always feasible (d = −U, s large).
-            rho = 1e3
-            nU = self.nU
-            Hs = np.zeros((nU + 1, nU + 1))
-            Hs[:nU, :nU] = H
-            Hs[nU, nU] = 1.0
-            gs = np.append(g, rho)
-            Gs = np.zeros((G.shape[0], nU + 1))
-            Gs[:, :nU] = G
-            Gs[:m, nU] = -1.0
-            H, g, G = Hs, gs, Gs
+            H = block_diag(H, 1.0)
+            g = np.append(g, 1e3)  # ρ
+            slack = np.zeros((G.shape[0], 1))
+            slack[:m] = -1.0
+            G = np.hstack([G, slack])
             lb, ub = np.append(lb, 0.0), np.append(ub, 1e6)
         if G.shape[0] == 0:
             G, h = None, None
@@ -502,7 +474,7 @@ class NMPCPlanner:
             problem, solver="proxqp", backend="dense", eps_abs=1e-7, eps_rel=0.0, max_iter=2000
         )
         if not sol.found or sol.x is None or not np.all(np.isfinite(sol.x)):
-            return None
+            return None if elastic else self._solve_qp(H, g, ev, rows, elastic=True)
         lam = np.zeros(m) if sol.z is None else np.maximum(np.asarray(sol.z[:m]), 0.0)
         return sol.x[: self.nU], lam
 
@@ -522,9 +494,7 @@ class NMPCPlanner:
             if self._max_violation(ev) <= c.restoration_tol:
                 return ev, its - 1
             rows = self._rows(ev)
-            out = self._solve_qp(H, g0, ev, prob, elastic=False, rows=rows)
-            if out is None:  # linearised constraints infeasible: elastic mode
-                out = self._solve_qp(H, g0, ev, prob, elastic=True, rows=rows)
+            out = self._solve_qp(H, g0, ev, rows)
             if out is None:
                 break
             d, _ = out
@@ -568,9 +538,7 @@ class NMPCPlanner:
             k += 1
             H = B if c.hessian == "bfgs" else 2.0 * ev.Jr.T @ ev.Jr + 1e-9 * np.eye(self.nU)
             rows = self._rows(ev)
-            out = self._solve_qp(H, ev.grad, ev, prob, elastic=False, rows=rows)
-            if out is None:
-                out = self._solve_qp(H, ev.grad, ev, prob, elastic=True, rows=rows)
+            out = self._solve_qp(H, ev.grad, ev, rows)
             if out is None:
                 status = "qp_failed"
                 break

@@ -26,7 +26,6 @@ class ArmSpec:
     Attributes:
         robot: robot name for :func:`pourbench.scene.robot_spec`.
         joints: the arm's joints in order.
-        ee_site: end-effector site.
         capsules: the arm's collision capsules (geom group 3).
         body_boxes: static collision geoms of the robot's body (obstacles for this arm).
         other_capsules: the other arm's capsules (Movo), an obstacle in dual-arm planning.

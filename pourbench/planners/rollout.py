@@ -79,7 +79,6 @@ def run_to_goal(
     """Run ``planner`` in closed loop until the goal pose is reached or ``max_steps`` pass.
 
     Args:
-        planner: an online planner.
         kin: the arm's kinematics (for the measured end-effector pose).
         q0: start configuration (n,) in rad.
         goal_pos: goal position (3,) in m.

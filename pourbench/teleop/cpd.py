@@ -102,10 +102,9 @@ class _Estep:
     used_fgt: bool
 
 
-def _sqdist(A: np.ndarray, B: np.ndarray, b2: np.ndarray | None = None) -> np.ndarray:
-    """(len(A), len(B)) squared Euclidean distances (``b2``: precomputed row norms of B)."""
-    if b2 is None:
-        b2 = np.einsum("ij,ij->i", B, B)
+def _sqdist(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """(len(A), len(B)) squared Euclidean distances."""
+    b2 = np.einsum("ij,ij->i", B, B)
     d2 = np.einsum("ij,ij->i", A, A)[:, None] + b2[None, :] - 2.0 * (A @ B.T)
     return np.maximum(d2, 0.0, out=d2)
 

@@ -235,10 +235,9 @@ def _smooth_noise(rng: np.random.Generator, u: np.ndarray, dim: int, rms: float)
 
 
 def _rotation(dim: int, rng: np.random.Generator, sd_rad: float) -> np.ndarray:
+    a = rng.normal(0.0, sd_rad)  # in 3-D about the vertical axis only (the table stays level)
     if dim == 2:
-        a = rng.normal(0.0, sd_rad)
         return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
-    a = rng.normal(0.0, sd_rad)  # about the vertical axis only (the table stays level)
     return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0, 0, 1.0]])
 
 

@@ -138,7 +138,6 @@ class HSMM:
         self.sigma = np.zeros((0, 0, 0))
         self.dur_mu = np.zeros(0)
         self.dur_sigma = np.zeros(0)
-        self.log_likelihood = -np.inf
 
     # ----------------------------------------------------------------- training
     def fit(self, sequences: Sequence[np.ndarray], n_iter: int = 30, tol: float = 1e-4) -> HSMM:
@@ -257,10 +256,8 @@ class HSMM:
             if not self.left_right:
                 self.priors = g0 / g0.sum()
             if ll / total - prev < tol:
-                prev = ll / total
                 break
             prev = ll / total
-        self.log_likelihood = prev * total
         # Gaussian durations from the runs of the most probable state
         runs: list[list[int]] = [[] for _ in range(K)]
         for gamma in gammas:

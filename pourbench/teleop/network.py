@@ -84,7 +84,6 @@ def task_outage(
     """The benchmark's outage: starts uniformly in ``[after, latest]`` x task, lasts up to 5 s.
 
     Args:
-        rng: random generator.
         task_duration: seconds.
         after_fraction: earliest start as a fraction of the task (thesis: 40 %).
         latest_fraction: latest start as a fraction of the task.
@@ -123,7 +122,6 @@ def random_outages(
     """Alternating up/down periods with exponential lengths (down capped at ``max_down``).
 
     Args:
-        rng: random generator.
         horizon: outages start before this time, seconds (finite, >= 0).
         mean_up: mean time between outages, seconds.
         mean_down: mean outage length, seconds.

@@ -311,7 +311,6 @@ class SkillCPD:
 
     Args:
         library: fitted :class:`~pourbench.teleop.skills.SkillLibrary`.
-        config: parameters.
 
     Raises:
         InvalidParameterError: ``library`` has no skills (not fitted), or the mode may
@@ -480,19 +479,15 @@ class SkillCPD:
             self.detector.packet(t)
             self._last_packet = h.copy()
             self._last_packet_t = float(t)
-            self._record(self.position)
-            self._last_t = t
-            return self.position.copy()
-        if self.position is None:
+        elif self.position is None:
             raise InvalidParameterError("no packet has arrived yet: the robot has no position")
-        if self.state == "direct":
-            if self.detector.disconnected(t):
-                if self._register(t):
-                    self._set_state(t, "skill")
-                    self.alpha = 0.0
-                    self.position = self._skill_point()
-                else:
-                    self._set_state(t, "hold")
+        elif self.state == "direct" and self.detector.disconnected(t):
+            if self._register(t):
+                self._set_state(t, "skill")
+                self.alpha = 0.0
+                self.position = self._skill_point()
+            else:
+                self._set_state(t, "hold")
         elif self.state in ("skill", "handback"):
             self._set_state(t, "skill")
             self.alpha = 0.0

@@ -28,7 +28,6 @@ class ChompConfig:
 
     Attributes:
         waypoints: trajectory waypoints including start and goal.
-        max_iters: iteration cap.
         eta: step regulariser (larger = smaller steps).
         obstacle_weight: λ, weight of the obstacle potential.
         epsilon: width of the smoothed hinge (m).

@@ -38,7 +38,6 @@ def plan_ompl(
     Args:
         world: MuJoCo world for validity checks.
         kin: the arm (joint order, limits, the full configuration of the other joints).
-        q_start: start configuration.
         q_goal: goal configuration (e.g. from mink IK).
         planner: ``"rrtconnect"``, ``"rrt"`` or ``"prmstar"``.
         safety_distance: clearance a valid state needs (m).

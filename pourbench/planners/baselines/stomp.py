@@ -35,7 +35,6 @@ class StompConfig:
     Attributes:
         waypoints: trajectory waypoints including start and goal.
         rollouts: noisy rollouts per iteration.
-        max_iters: iteration cap.
         noise_std: scale of the exploration noise (rad).
         h: sensitivity of the exponentiated cost.
         margin: extra distance beyond the safety distance the obstacle cost pushes to (m).
