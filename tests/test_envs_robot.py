@@ -326,10 +326,16 @@ def test_a_robot_pour_is_recorded_for_rerun(tmp_path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("hz", "match"), [(200.0, "above the liquid solver's rate"), (50.0, "near")]
+    ("bad", "match"),
+    [
+        ({"control_hz": 200.0}, "above the liquid solver's rate"),
+        ({"control_hz": 50.0}, "near"),
+        ({"target_range_g": (50.0, 400.0)}, "more than the pouring container 'training'"),
+    ],
 )
-def test_a_control_rate_the_solver_cannot_run_is_refused(hz: float, match: str) -> None:
-    """PourRobot-v0 takes the same control rates as Pour-v0: whole numbers of solver steps."""
-    with pytest.raises(InvalidParameterError, match=match):
-        RobotPourEnv(control_hz=hz)
+def test_settings_a_reset_could_not_run_are_refused(bad: dict, match: str) -> None:
+    """PourRobot-v0 takes the control rates and amounts Pour-v0 takes: whole numbers of
+    solver steps, and targets its container holds (so no drawn reset can be refused)."""
+    with pytest.raises(ValueError, match=match):
+        RobotPourEnv(**bad)
     assert RobotPourEnv(control_hz=20.0).metadata["render_fps"] == 20.0

@@ -52,24 +52,22 @@ def load_log(path: Path) -> tuple[dict[str, dict], int]:
     done: dict[str, dict] = {}
     size = 0
     for i, line in enumerate(lines):
-        if line.strip():
-            try:
-                if i == last and not line.endswith(b"\n"):
-                    raise ValueError("no newline at its end")
-                entry = json.loads(line)
+        try:
+            if line.strip():  # only the last line can lack its newline
+                entry = json.loads(line if line.endswith(b"\n") else b"")
                 done[entry["key"]] = entry["result"]
-            except (ValueError, KeyError, TypeError) as exc:
-                if i < last:
-                    raise PourbenchError(
-                        f"{path}, line {i + 1}, is not a logged result ({exc}); delete that "
-                        "line (its job runs again)"
-                    ) from exc
-                print(
-                    f"warning: {path}: ignoring its incomplete last line (a run stopped while "
-                    "writing it); that job runs again",
-                    file=sys.stderr,
-                )
-                break
+        except (ValueError, KeyError, TypeError) as exc:
+            if i < last:
+                raise PourbenchError(
+                    f"{path}, line {i + 1}, is not a logged result ({exc}); delete that "
+                    "line (its job runs again)"
+                ) from exc
+            print(
+                f"warning: {path}: ignoring its incomplete last line (a run stopped while "
+                "writing it); that job runs again",
+                file=sys.stderr,
+            )
+            break
         size += len(line)
     return done, size
 

@@ -24,7 +24,7 @@ import copy
 import math
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -93,6 +93,46 @@ def container_capacity_g(container: str, density: float, spacing: float) -> floa
     """Liquid (g) of ``density`` (kg/m³) the container holds at particle ``spacing`` (m)."""
     n = len(container_lattice(get_container(container).shape, spacing))  # cached
     return n * spacing**3 * 1e3 * density
+
+
+def check_draws(
+    cfg: PourConfig,
+    candidates: Sequence[str],
+    liquid: LiquidProfile | None,
+    lessons: Sequence[Lesson],
+    spacing: float,
+) -> None:
+    """Refuse settings under which a reset without options could be refused, so that no
+    autoreset ever is. A reset draws a liquid (``liquid``, else from ``lessons``), a container
+    of ``candidates`` (one holding the largest target plus the least extra if any does) and a
+    target, which must fit that container and weigh at least one particle (at ``spacing``, m).
+
+    Raises:
+        CapacityError: a container a reset may draw cannot hold the largest target of the
+            lightest liquid; InvalidParameterError: the least target is under one particle
+            of the heaviest.
+    """
+    if liquid is not None:
+        lo = hi = liquid.density
+    else:
+        densities = [lesson.ranges["density"] for lesson in lessons]
+        lo, hi = min(d[0] for d in densities), max(d[1] for d in densities)
+    least, most = cfg.target_range_g
+    holds = {c: 0.85 * container_capacity_g(c, lo, spacing) for c in candidates}
+    small = [c for c in candidates if holds[c] < most]
+    if small and all(g < most + cfg.extra_range_g[0] for g in holds.values()):
+        raise CapacityError(
+            f"target_range_g reaches {most:g} g, more than the pouring container "
+            f"{small[0]!r} holds of the lightest liquid a reset may draw ({lo:g} kg/m^3): "
+            f"{holds[small[0]]:.0f} g, 85 % of its capacity; "
+            "narrow target_range_g or choose a larger container"
+        )
+    particle_g = hi * spacing**3 * 1e3
+    if least < particle_g:
+        raise InvalidParameterError(
+            f"target_range_g starts at {least:g} g, less than one particle ({particle_g:.3g} g "
+            f"at {hi:g} kg/m^3 and {spacing * 1e3:g} mm spacing)"
+        )
 
 
 def draw_amounts(
@@ -417,7 +457,7 @@ class PourBatch:
         self.control_dt = self.substeps * scfg.dt
         check_memory(self.n, cfg)  # before anything of the worlds is allocated
         self.candidates = pouring_candidates(cfg)
-        self._check_draws()
+        check_draws(cfg, self.candidates, self.default_liquid, self.lessons, scfg.spacing)
         # MuJoCo: the first candidate is body "pouring", the others "pouring_<name>"
         scene = build_pour_scene(pouring=self.candidates[0], receiving=cfg.receiving)
         for name in self.candidates[1:]:
@@ -506,37 +546,6 @@ class PourBatch:
     def set_lesson(self, k: int) -> None:
         """Use curriculum lesson ``k`` for liquids drawn at later resets."""
         self.lesson = check_index("lesson", k, len(self.lessons))
-
-    def _check_draws(self) -> None:
-        """Refuse settings under which a reset without options could be refused: the largest
-        drawn target plus the least extra must fit in some pouring container for the lightest
-        liquid that can be drawn, and the least target must be at least one particle of the
-        heaviest (what :meth:`draw_reset` checks per draw). So an autoreset is never refused."""
-        cfg = self.config
-        if self.default_liquid is not None:
-            lo = hi = self.default_liquid.density
-            what = self.default_liquid.name
-        else:
-            densities = [lesson.ranges["density"] for lesson in self.lessons]
-            lo, hi = min(d[0] for d in densities), max(d[1] for d in densities)
-            what = f"the curriculum's lightest liquid ({lo:g} kg/m^3)"
-        need = cfg.target_range_g[1] + cfg.extra_range_g[0]
-        most = max(self.capacity_g(c, lo) for c in self.candidates)
-        if need > 0.85 * most:
-            raise CapacityError(
-                f"target_range_g's {cfg.target_range_g[1]:g} g plus extra_range_g's "
-                f"{cfg.extra_range_g[0]:g} g is more than any of the pouring containers "
-                f"{list(self.candidates)} holds of {what}: at most {0.85 * most:.0f} g (85 % "
-                "of its capacity); narrow target_range_g/extra_range_g or choose a larger "
-                "container"
-            )
-        particle_g = hi * self.solver_config.spacing**3 * 1e3
-        if cfg.target_range_g[0] < particle_g:
-            raise InvalidParameterError(
-                f"target_range_g starts at {cfg.target_range_g[0]:g} g, less than one particle "
-                f"({particle_g:.3g} g at {hi:g} kg/m^3 and "
-                f"{self.solver_config.spacing * 1e3:g} mm spacing)"
-            )
 
     def _park_all(self, d: mujoco.MjData) -> None:
         for i, c in enumerate(self.candidates):

@@ -65,12 +65,7 @@ class ResetOptions:
 
     def __post_init__(self) -> None:
         """Check and convert the fields (a liquid name becomes its profile), so that every
-        instance, however made, holds checked values.
-
-        Raises:
-            InvalidParameterError: a malformed value.
-            UnknownNameError: an unknown liquid.
-        """
+        instance, however made, holds checked values; raises as :meth:`parse`."""
         liquid, container, start = self.liquid, self.container, self.start
         if container is not None and not isinstance(container, str):
             raise InvalidParameterError(f"container must be a name, got {container!r}")

@@ -182,8 +182,7 @@ class PourEnv(gym.Env):
     def render(self) -> np.ndarray | None:
         if self.render_mode == "human":
             self._show()
-            return None
-        if self.render_mode != "rgb_array":
+        if self.render_mode != "rgb_array":  # "human" shows and returns None
             return None
         if self._renderer is None:
             try:

@@ -66,6 +66,7 @@ from gymnasium.error import ResetNeeded
 from pourbench.containers import get_container
 from pourbench.envs.action_handler import as_actions, handle_actions
 from pourbench.envs.core import (
+    check_draws,
     control_substeps,
     default_solver_config,
     draw_amounts,
@@ -246,6 +247,7 @@ class RobotPourEnv(gym.Env):
         self.recv = get_container(cfg.receiving)
         scfg = cfg.solver or default_solver_config()
         self.solver_config = scfg
+        check_draws(cfg, [self.container], self.default_liquid, self.lessons, scfg.spacing)
         self.substeps = control_substeps(cfg.control_hz, scfg.dt)
         self.control_dt = self.substeps * scfg.dt
         self.metadata = {**self.metadata, "render_fps": cfg.control_hz}
