@@ -1,8 +1,10 @@
 """Bit-for-bit fingerprints of Pour-v0, the vector env and the solver on the CPU.
 
 A refactor that claims to change no behaviour must leave these hashes as they are. They hash
-float64 copies of every observation, reward and flag of short random-action runs, and the
-particle positions and velocities of a viscous two-cup pour (the implicit viscosity solve).
+float64 copies of every observation, reward and flag of short random-action runs with each
+reset's filled grams (and, for the single env, its particles' final positions: a random
+policy rarely pours, so the observations alone barely see the liquid), and the particle
+positions and velocities of a viscous two-cup pour (the implicit viscosity solve).
 
 The hashes hold for one CPU's floating-point path: Warp's LLVM code generation may contract or
 vectorise differently on another instruction set, so they are marked slow and kept out of CI.
@@ -25,9 +27,9 @@ from pourbench.fluids.scenarios import tilt_schedule, two_cup_scene
 pytestmark = pytest.mark.slow
 
 RECORDED = {
-    "single water thesis": "9b9ff0ca69c2afdf",
-    "single honey free": "7d0e4bb4e581eeff",
-    "vector oil": "0b3f0bef1f702170",
+    "single water thesis": "9c48dc52c85eb51a",
+    "single honey free": "95618dbd813645e7",
+    "vector oil": "7781d29c86433889",
     "solver honey two-cup": "844fb13b7006bb52",
 }
 
@@ -42,13 +44,15 @@ def _hash(arrays: list) -> str:
 def _single(liquid: str, mode: str) -> str:
     env = PourEnv(liquid=liquid, action_mode=mode)
     rng = np.random.default_rng(1)
-    obs, _ = env.reset(seed=3, options={"target_g": 100.0})
-    seen = [obs]
+    obs, info = env.reset(seed=3, options={"target_g": 100.0})
+    seen = [obs, info["initial_g"]]
     for _ in range(80):
         obs, reward, term, trunc, info = env.step(rng.uniform(-1, 1, env.action_space.shape))
         seen += [obs, [reward, term, trunc, info["error_g"], info["spilled_g"]]]
         if term or trunc:
-            obs, _ = env.reset(seed=4)
+            obs, info = env.reset(seed=4)
+            seen += [info["initial_g"]]
+    seen += [env.unwrapped.batch.solver.positions()]  # the liquid, poured or not
     env.close()
     return _hash(seen)
 
@@ -56,8 +60,8 @@ def _single(liquid: str, mode: str) -> str:
 def _vector() -> str:
     env = PourVectorEnv(num_envs=3, liquid="oil")
     rng = np.random.default_rng(2)
-    obs, _ = env.reset(seed=5)
-    seen = [obs]
+    obs, info = env.reset(seed=5)
+    seen = [obs, info["initial_g"]]
     for _ in range(60):
         obs, reward, term, trunc, _ = env.step(rng.uniform(-1, 1, env.action_space.shape))
         seen += [obs, reward, term, trunc]

@@ -44,6 +44,12 @@ def test_the_tables_set_each_policy_beside_the_thesis() -> None:
     assert (water["thesis_lstm_g"], water["thesis_fnn_g"]) == (2.3, 5.13)  # Table 6.3, 100 g
     assert (water["pd_g"], water["pd_success"], water["flags"]) == (2.5, 1.0, "")
 
+    means = pouring.table_means([ketchup, water], ["thesis_lstm_g", "pd_g", "random_g"])
+    # over every cell a policy's mean counts ketchup at 150 g, which the thesis never reached
+    assert means["all"] == {"thesis_lstm_g": 2.3, "pd_g": 5.25, "random_g": 125.0}
+    # over the cells the thesis filled, every column averages the same cells
+    assert means["thesis_cells"] == {"thesis_lstm_g": 2.3, "pd_g": 2.5, "random_g": 100.0}
+
     novel = {("pd", "water", "mug", 50.0, s): _result(e, density=1.25) for s, e in ((0, 1), (1, 4))}
     (row,) = pouring.container_table(novel, ("pd",), ("mug",), 2)
     assert (row["pd_g"], row["pd_ml"]) == (2.5, 2.0)

@@ -769,6 +769,19 @@ def test_reset_options_made_directly_are_checked_like_a_dict() -> None:
     assert info["target_g"] == 80.0
 
 
+def test_the_fill_holds_at_least_the_target() -> None:
+    """A reset fills at least its initial amount, so a target equal to the initial amount can
+    be reached: {"target_g": 100, "initial_g": 100} fills 100 g and less than a particle more
+    (the nearest particle count held 99.84 g), and so does every drawn reset."""
+    env = PourEnv(liquid="water")
+    _, info = env.reset(seed=0, options={"target_g": 100.0, "initial_g": 100.0})
+    grams = env.unwrapped.batch.particle_g[0]
+    assert 100.0 <= info["initial_g"] < 100.0 + grams
+    for seed in range(8):
+        _, info = env.reset(seed=seed)
+        assert info["initial_g"] >= info["target_g"]
+
+
 def test_an_initial_amount_alone_draws_a_target_it_holds() -> None:
     """reset(options={"initial_g": x}) draws the target from the config's range up to x, at
     every seed; an x below the range's least target is refused."""

@@ -877,3 +877,21 @@ def test_fast_liquid_motion_is_not_a_blow_up() -> None:
         assert not dam.diverged().any(), f"dam break flagged at {dam.time:.2f} s"
         assert not tray.diverged().any(), f"carried tray flagged at {tray.time:.2f} s"
     assert fastest > 1.0  # the collapse is fast: the bound is not idle
+
+
+def test_fill_at_least_holds_the_mass_asked_for_with_one_particle_to_spare_at_most() -> None:
+    """``at_least`` rounds the particle count up: the least count whose mass reaches the
+    grams asked for, where the default takes the nearest count (which may fall short)."""
+    s = PBFSolver(2)
+    grams = s.particle_mass(0) * 1e3
+    cups = [s.add_container(w, cup(0.04, 0.08)) for w in range(2)]
+    for mass_g in (100.0, 99.9, 10 * grams, 10.4 * grams, 0.2 * grams):
+        s.clear_world(0)
+        s.clear_world(1)
+        n_up = s.fill(0, cups[0], mass_g, "water", at_least=True)
+        n_near = s.fill(1, cups[1], mass_g, "water")
+        assert n_up * grams >= mass_g > (n_up - 1) * grams
+        assert n_near == round(mass_g / grams)
+    # the nearest count can fall short of the mass asked for; rounded up it cannot
+    s.clear_world(0)
+    assert s.fill(0, cups[0], 10.4 * grams, "water") * grams < 10.4 * grams

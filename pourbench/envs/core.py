@@ -670,7 +670,7 @@ class PourBatch:
         self.solver.set_container_shape(self.pour_col[world], get_container(name).shape)
         self.solver.clear_world(world)
         self.solver.set_liquid(world, liquid)
-        n = self.solver.fill(world, self.pour_col[world], draw.initial_g)
+        n = self.solver.fill(world, self.pour_col[world], draw.initial_g, at_least=True)
         self.initial_g[world] = self.worlds[world].initial_g = n * particle_g
         self.filter.reset(world, 0.0)  # the empty receiving container weighs 0 g
 

@@ -441,7 +441,7 @@ class RobotPourEnv(gym.Env):
         self.coupling.sync()
         self.solver.clear_world(0)
         self.solver.set_liquid(0, liquid)
-        n = self.solver.fill(0, self.pour_col, initial)
+        n = self.solver.fill(0, self.pour_col, initial, at_least=True)
         self.initial_g = n * particle_g
         self.solver.step(0)
         d.xfrc_applied[:] = 0.0

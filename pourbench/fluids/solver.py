@@ -24,6 +24,7 @@ liquid's.
 
 from __future__ import annotations
 
+import math
 import operator
 import warnings
 
@@ -282,12 +283,19 @@ class PBFSolver:
         self._x, self._v, self._world = self._x[keep], self._v[keep], self._world[keep]
 
     def fill(
-        self, world: int, collider: int, mass_g: float, liquid: str | LiquidProfile | None = None
+        self,
+        world: int,
+        collider: int,
+        mass_g: float,
+        liquid: str | LiquidProfile | None = None,
+        at_least: bool = False,
     ) -> int:
         """Place ``mass_g`` grams of liquid at rest density in a container collider.
 
         Particles fill the cavity from the bottom up at one per ``spacing``³ (see
-        :func:`container_lattice`), so the liquid starts at its level.
+        :func:`container_lattice`), so the liquid starts at its level. Their count is the
+        nearest whole number to ``mass_g`` over a particle's mass, or with ``at_least`` the
+        least count whose mass (count × :meth:`particle_mass`) is at least ``mass_g``.
 
         Returns:
             The number of particles added.
@@ -308,6 +316,13 @@ class PBFSolver:
             self.set_liquid(world, liquid)
         m = self.particle_mass(world)
         n = round(mass_g * 1e-3 / m)
+        if at_least:  # the least n with n × (particle grams) ≥ mass_g in float arithmetic
+            grams = m * 1e3
+            n = math.ceil(mass_g / grams)
+            while n * grams < mass_g:
+                n += 1
+            while n > 0 and (n - 1) * grams >= mass_g:
+                n -= 1
         local = container_lattice(c.shape, self.config.spacing)
         if n > len(local):
             cap = len(local) * m * 1e3
