@@ -134,6 +134,33 @@ def test_without_ray_the_sweep_says_how_to_install_it(tmp_path, monkeypatch, cap
     assert "bench fluids has no Ray path" in capsys.readouterr().err
 
 
+def test_a_sweep_folder_resumes_only_with_the_config_it_was_started_with(tmp_path) -> None:
+    """The record a sweep writes when it starts lets the same config resume; a changed one
+    is refused, naming the folder and every key that changed, and so is a folder without a
+    record (or with a malformed one). Nothing in the folder changes."""
+    from pourbench.agents.sweep import CONFIG_RECORD, check_resume, config_record
+
+    sweep = load_sweep(_write(tmp_path, TINY.format(budget=256)))
+    folder = tmp_path / "tiny"
+    folder.mkdir()
+    with pytest.raises(PourbenchError, match=f"{folder} holds a sweep with no record"):
+        check_resume(folder, sweep)
+    (folder / CONFIG_RECORD).write_text(json.dumps(config_record(sweep)))
+    check_resume(folder, sweep)  # the same config resumes
+    changed = TINY.format(budget=512).replace("seed = [0, 1]", "seed = [0, 2]\nicm = [false]")
+    changed = load_sweep(_write(tmp_path, changed.replace("[sweep]", "[sweep]\nsamples = 2")))
+    with pytest.raises(PourbenchError) as refused:
+        check_resume(folder, changed)
+    assert str(refused.value).startswith(
+        f"{folder} was started with another config: search.icm, search.seed, "
+        "sweep.samples, train.budget_steps changed"
+    )
+    assert json.loads((folder / CONFIG_RECORD).read_text()) == config_record(sweep)
+    (folder / CONFIG_RECORD).write_text("{")
+    with pytest.raises(PourbenchError, match="not a sweep config record"):
+        check_resume(folder, sweep)
+
+
 @pytest.mark.slow
 def test_a_tiny_sweep_finishes_and_writes_its_table(tmp_path) -> None:
     """Two trials of 256 steps on a local Ray: each evaluated at 128 and 256 steps, then
@@ -172,6 +199,8 @@ def test_a_killed_sweep_resumes_its_trials_from_their_checkpoints(tmp_path) -> N
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
+    changed = _write(tmp_path, TINY.format(budget=1024), "changed.toml")
+    assert main(["sweep", str(changed), "--out", str(out)]) == 2  # refused: budget_steps changed
     assert main(["sweep", str(path), "--out", str(out)]) == 0
     rows = json.loads((out / "tiny" / "sweep.json").read_text())["rows"]
     assert [r["status"] for r in rows] == ["done", "done"]

@@ -7,7 +7,9 @@ Table 6.2's liquids or ``eval_liquid``) through ``tune.report``, with the run's 
 (model, curiosity module, state). A trial that fails or whose worker dies restarts from its
 last report (``max_failures``; before its first report: from the last checkpoint its run
 wrote, else afresh), and a sweep whose command was stopped resumes where it was when the
-same command runs again. The sweep's folder (``<out>/<name>``, Tune's experiment
+same command runs again; a sweep folder is resumed only with the config it was started with
+(its ``sweep_config.json`` holds that config and its hash), and any other is refused, naming
+the keys that changed. The sweep's folder (``<out>/<name>``, Tune's experiment
 folder) ends with ``sweep.md`` and ``sweep.json`` (one row per trial) and ``sweep.png`` (each
 trial's evaluation error against steps).
 
@@ -34,7 +36,9 @@ joins a cluster (docs/ray.md).
 from __future__ import annotations
 
 import argparse
+import hashlib
 import itertools
+import json
 import math
 import shutil
 import sys
@@ -154,6 +158,55 @@ def load_sweep(path: str | Path) -> Sweep:
                   **{k: head[k] for k in SWEEP_KEYS if k in head and k != "name"})  # fmt: skip
     _check_trials(sweep)
     return sweep
+
+
+CONFIG_RECORD = "sweep_config.json"
+"""File in a sweep's folder holding the config the sweep was started with and its hash."""
+
+
+def config_record(sweep: Sweep) -> dict[str, Any]:
+    """The sweep's settings that shape its trials (``sweep``, ``train`` and ``search``
+    tables, defaults filled in) and the sha256 of their canonical JSON."""
+    settings = {
+        "sweep": {"name": sweep.name, **{k: getattr(sweep, k) for k in SWEEP_KEYS if k != "name"}},
+        "train": sweep.train,
+        "search": sweep.search,
+    }
+    text = json.dumps(settings, sort_keys=True)
+    return {"sha256": hashlib.sha256(text.encode()).hexdigest(), "config": settings}
+
+
+def _flat(settings: dict[str, Any]) -> dict[str, Any]:
+    return {f"{table}.{key}": v for table, values in settings.items() for key, v in values.items()}
+
+
+def check_resume(folder: Path, sweep: Sweep) -> None:
+    """Refuse to resume the sweep folder ``folder`` with a config other than the one it was
+    started with (Tune would restore the old search space and run it with the new shared
+    settings): the error names the folder and the keys that differ. A folder with Tune's
+    state but no record of its config is refused too, since it cannot be checked."""
+    record = folder / CONFIG_RECORD
+    if not record.is_file():
+        raise InvalidParameterError(
+            f"{folder} holds a sweep with no record of its config ({CONFIG_RECORD}), so it "
+            "cannot be checked against this one: give the sweep another name, or remove the "
+            "folder to start it again"
+        )
+    try:
+        stored = json.loads(record.read_text(encoding="utf-8"))
+        old, stored_hash = stored["config"], stored["sha256"]
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        raise InvalidParameterError(f"{record}: not a sweep config record ({exc})") from None
+    new = config_record(sweep)
+    if stored_hash == new["sha256"]:
+        return
+    before, after = _flat(old), _flat(new["config"])
+    changed = sorted(k for k in before.keys() | after.keys() if before.get(k) != after.get(k))
+    raise InvalidParameterError(
+        f"{folder} was started with another config: {', '.join(changed) or 'its hash'} "
+        f"changed; resume it with the config it was started with, give the sweep another "
+        f"name, or remove the folder to start it again"
+    )
 
 
 def _check_trials(sweep: Sweep) -> None:
@@ -318,15 +371,20 @@ def run_sweep(config: str | Path, out: str | Path = "runs/sweeps", address: str 
 
     storage = check_output_folder(out).resolve()
     folder = storage / sweep.name
+    resuming = tune.Tuner.can_restore(str(folder))
+    if resuming:
+        check_resume(folder, sweep)
     started = init_ray(address or "local")
     try:
         trainable = tune.with_resources(
             tune.with_parameters(run_trial, sweep=sweep), {"cpu": sweep.cpus_per_trial}
         )
-        if tune.Tuner.can_restore(str(folder)):
+        if resuming:
             print(f"sweep: resuming {folder}", file=sys.stderr)
             tuner = tune.Tuner.restore(str(folder), trainable, resume_errored=True)
         else:
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / CONFIG_RECORD).write_text(json.dumps(config_record(sweep), indent=1))
             tuner = tune.Tuner(
                 trainable,
                 param_space=sweep.param_space(),
