@@ -15,6 +15,7 @@ import io
 import json
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from pourbench.argtypes import nonnegative_int, policy_name, positive_float, positive_int
 from pourbench.errors import InvalidParameterError, PourbenchError
@@ -33,6 +34,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from pourbench.bench._jobs import import_ray
 
         import_ray()  # before any work: says how to install it
+    if args.against is not None:
+        if "env" not in suites:
+            raise InvalidParameterError(f"--against: bench {args.suite} has no pinned comparison")
+        if args.against.lower() != "none":
+            from pourbench.bench.env_pinned import resolve_commit
+
+            resolve_commit(args.against, Path(__file__).resolve().parent.parent)
     if args.device == "cuda":
         from pourbench.fluids.solver import cuda_available
 
@@ -186,6 +194,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="pouring, transfer: spread the episodes over Ray: a local Ray on this machine's "
         "cores, or the cluster at ADDRESS (auto: the one `ray start` began here); the same "
         "tables as without it (docs/ray.md)",
+    )
+    bench.add_argument(
+        "--against",
+        default=None,
+        metavar="SHA",
+        help="env: alternate each CPU case with Pour-v0 as this earlier commit steps it "
+        "(default: f8f94b4, the code before the batched step, left out with --quick; none: "
+        "no comparison); needs the project's git checkout",
     )
     bench.set_defaults(func=_cmd_bench)
 

@@ -4,6 +4,9 @@ autoresets included), a dead worker raises in the parent, close ends every worke
 
 from __future__ import annotations
 
+import subprocess
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -226,3 +229,43 @@ def test_the_step_profile_accounts_for_the_whole_step_and_unwraps() -> None:
     assert kernels["predict"][1] == kernels["collide"][1] == 12.0  # once a substep
     assert kernels["density_sums"][1] == 36.0  # three iterations a substep
     assert StepLaunches.launch is launch and wp.capture_launch is capture_launch
+
+
+def _repo() -> Path:
+    root = Path(__file__).resolve().parents[1]
+    if subprocess.run(["git", "-C", str(root), "rev-parse"], capture_output=True).returncode:
+        pytest.skip("needs the project's git checkout")
+    return root
+
+
+def test_bench_row_beside_a_pinned_commit_steps_that_commits_code(tmp_path) -> None:
+    """A case alternates with Pour-v0 from an earlier commit's source tree, in child
+    processes of this venv that import pourbench from that tree (checked by the children),
+    one per worker: here HEAD's own tree, whose kernels this suite has compiled."""
+    from pourbench.bench import env
+    from pourbench.bench.env_pinned import source_tree
+
+    tree = source_tree("HEAD", _repo(), root=tmp_path)
+    assert (tree / "pourbench" / "envs").is_dir() and len(tree.name) == 40
+    assert source_tree("HEAD", _repo(), root=tmp_path) == tree  # extracted once
+    row = env.run_case("vector", "cpu", 2, budget_s=0.0, min_steps=2, workers=2, pinned=tree)
+    assert row["pinned_env_steps_per_s"] > 0 and row["speedup_vs_pinned"] > 0
+    row = env.run_case("single", "cpu", 1, budget_s=0.0, min_steps=2, pinned=tree)
+    assert row["speedup_vs_pinned"] == pytest.approx(
+        row["env_steps_per_s"] / row["pinned_env_steps_per_s"]
+    )
+
+
+def test_a_pinned_comparison_is_refused_before_any_work(capsys) -> None:
+    """An unknown commit, or --against for a suite without the comparison, is refused in one
+    line before anything runs; the default leaves the comparison out of --quick runs."""
+    from pourbench.bench import env
+    from pourbench.cli import main
+
+    _repo()
+    assert main(["bench", "env", "--quick", "--against", "0000000"]) == 2
+    assert "--against 0000000: no such commit" in capsys.readouterr().err
+    assert main(["bench", "fluids", "--quick", "--against", "HEAD"]) == 2
+    assert "--against: bench fluids has no pinned comparison" in capsys.readouterr().err
+    assert env.pinned_tree(None, quick=True) == (None, None)
+    assert env.pinned_tree("none", quick=False) == (None, None)

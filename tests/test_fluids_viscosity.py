@@ -300,3 +300,41 @@ def test_a_settling_sphere_meets_the_closed_form_over_two_decades(settling) -> N
     Schiller–Naumann term within :data:`SETTLING_TOLERANCE` at each viscosity."""
     ratios = {mu: r.terminal / r.closed_form for mu, r in zip(SETTLING_MUS, settling, strict=True)}
     assert all(abs(r - 1.0) <= SETTLING_TOLERANCE for r in ratios.values()), ratios
+
+
+def _swirled(liquids: list[str], threshold: float) -> np.ndarray:
+    """Each world's cup of 150 g of ``liquids[w]``, swirled for 20 steps at Pour-v0's
+    resolution with ``min_viscous_diffusion`` = ``threshold``: world 0's velocities."""
+    cfg = SolverConfig(spacing=0.008, dt=1.0 / 120.0, iterations=3, min_viscous_diffusion=threshold)
+    s = PBFSolver(len(liquids), cfg)
+    for w, liquid in enumerate(liquids):
+        s.fill(w, s.add_container(w, cup(0.04, 0.1)), 150.0, liquid)
+    x = s.positions()[s.world_slice(0)]
+    s.clear_world(0)
+    swirl = np.zeros_like(x)
+    swirl[:, :2] = np.stack([-x[:, 1], x[:, 0]], 1) * 20.0  # a rigid swirl of 20 rad/s
+    s.add_particles(0, x, swirl)
+    s.step(20)
+    return s.velocities()[s.world_slice(0)]
+
+
+def test_a_liquid_below_the_diffusion_threshold_takes_no_viscosity_solve() -> None:
+    """ν dt / h² per world is its closed form, and 0 below ``min_viscous_diffusion``. A
+    skipped world moves otherwise than when it is solved (oil at thresholds 1e-2 and 0), the
+    same alone or beside a solved liquid. Water at Pour-v0's resolution is under the
+    threshold Pour-v0 sets, and its solve moves no particle by a bit: skipping it loses
+    nothing."""
+    cfg = SolverConfig(spacing=0.008, dt=1.0 / 120.0, min_viscous_diffusion=1e-3)
+    s = PBFSolver(3, cfg)
+    for w, liquid in enumerate(("water", "oil", "honey")):
+        s.set_liquid(w, liquid)
+    expected = [
+        liquid_profile(n).viscosity_pa_s / liquid_profile(n).density * cfg.dt / cfg.h**2
+        for n in ("water", "oil", "honey")
+    ]
+    assert expected[0] < 1e-4 and expected[1] > 1e-3  # water under Pour-v0's threshold
+    assert s.viscous_diffusion() == pytest.approx([0.0, expected[1], expected[2]])
+    skipped = _swirled(["oil"], 1e-2)
+    assert np.array_equal(skipped, _swirled(["oil", "honey"], 1e-2))
+    assert not np.allclose(skipped, _swirled(["oil"], 0.0), atol=1e-4)
+    assert np.array_equal(_swirled(["water"], 1e-3), _swirled(["water"], 0.0))

@@ -20,12 +20,15 @@ import dataclasses
 import json
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pourbench.bench._report import devices, markdown_table, report_stem, write_report
+from pourbench.bench.env_pinned import PINNED_SHA, PinnedPour, source_tree
 from pourbench.bench.env_robot import ROBOT_CASES, robot_case
+from pourbench.errors import InvalidParameterError
 
 TARGET_SINGLE_CPU = 200.0
 TARGET_VECTOR_CPU = 400.0  # 64 worlds on 2 workers
@@ -58,13 +61,17 @@ def run_case(
     budget_s: float = 5.0,
     min_steps: int = 3,
     workers: int = 1,
+    pinned: Path | None = None,
 ) -> dict[str, Any]:
     """Time one case (at least ``min_steps`` environment steps and ``budget_s`` seconds);
     returns a leaderboard row. An episode that ends is reset, as a training loop does (the
     vector env resets its worlds itself), and the resets count in the time. The same worlds
     stepped by :class:`~pourbench.bench.env_baseline.LoopedPourBatch` (the world-by-world
     step, in this process) alternate step by step with the case, so both see the same
-    machine load, until the baseline has had ``budget_s`` and ``min_steps`` of its own."""
+    machine load, until the baseline has had ``budget_s`` and ``min_steps`` of its own.
+    With ``pinned`` (an earlier commit's source tree, :mod:`pourbench.bench.env_pinned`) the
+    same case as that code steps it, in child processes on ``workers`` processes, alternates
+    with them the same way."""
     from pourbench.envs import PourConfig, default_solver_config
     from pourbench.envs.pour_v0 import PourEnv
     from pourbench.envs.vector import PourVectorEnv
@@ -102,25 +109,40 @@ def run_case(
             env.reset()
 
     looped = _Looped(worlds, PourConfig(solver=scfg))
+    old = None if pinned is None else PinnedPour(pinned, front_end, worlds, workers)
     for _ in range(2):
         step()
         looped.step()
     steps, base_steps, s0, wall, base_wall = 0, 0, solver_s(), 0.0, 0.0
-    while steps < min_steps or wall < budget_s:
-        t0 = time.perf_counter()
-        step()
-        wall += time.perf_counter() - t0
-        steps += 1
-        # the baseline alternates with the case until it has had its own budget (where it is
-        # far slower, as at thousands of CUDA worlds, it takes fewer steps)
-        if base_steps < min_steps or base_wall < budget_s:
+    old_steps, old_wall = 0, 0.0
+    try:
+        while steps < min_steps or wall < budget_s:
             t0 = time.perf_counter()
-            looped.step()
-            base_wall += time.perf_counter() - t0
-            base_steps += 1
+            step()
+            wall += time.perf_counter() - t0
+            steps += 1
+            # the baselines alternate with the case until each has had its own budget (where
+            # one is far slower, as at thousands of CUDA worlds, it takes fewer steps)
+            if base_steps < min_steps or base_wall < budget_s:
+                t0 = time.perf_counter()
+                looped.step()
+                base_wall += time.perf_counter() - t0
+                base_steps += 1
+            if old is not None and (old_steps < min_steps or old_wall < budget_s):
+                old_wall += old.step()
+                old_steps += 1
+    finally:
+        if old is not None:
+            old.close()
     in_solver = solver_s() - s0
     count, grams = particles()
     env.close()
+    pinned_row = {}
+    if old is not None:
+        pinned_row = {
+            "pinned_env_steps_per_s": worlds * old_steps / old_wall,
+            "speedup_vs_pinned": (old_wall / old_steps) / (wall / steps),
+        }
     return {
         "front_end": front_end,
         "device": device,
@@ -133,6 +155,7 @@ def run_case(
         "host_share": max(0.0, 1.0 - in_solver / (workers * wall)),
         "baseline_env_steps_per_s": worlds * base_steps / base_wall,
         "speedup_vs_baseline": (base_wall / base_steps) / (wall / steps),
+        **pinned_row,
     }
 
 
@@ -164,13 +187,35 @@ def _particles(batch: Any, world: int) -> tuple[int, float]:
     return sl.stop - sl.start, float(batch.particle_g[world])
 
 
+def pinned_tree(against: str | None, quick: bool) -> tuple[Path | None, str | None]:
+    """The source tree and full SHA of the commit the CPU cases alternate with: ``against``
+    ("none": no comparison), by default :data:`PINNED_SHA` (none with ``quick``). Refused
+    when asked for explicitly outside the project's git checkout; the default is then left
+    out with a line on stderr."""
+    if against is None and quick:
+        return None, None
+    if against is not None and against.lower() == "none":
+        return None, None
+    repo = Path(__file__).resolve().parents[2]
+    try:
+        tree = source_tree(against or PINNED_SHA, repo)
+    except InvalidParameterError as exc:
+        if against is not None:
+            raise
+        print(f"env: no pinned comparison ({exc})", file=sys.stderr)
+        return None, None
+    return tree, tree.name
+
+
 def run(args: argparse.Namespace) -> int:
     rows = []
     choice = getattr(args, "device", "auto")
+    tree, pinned_sha = pinned_tree(getattr(args, "against", None), args.quick)
     for front, dev, n in cases(args.quick, choice):
         for workers in workers_for(front, dev):
             print(f"env: {front} {dev} {n} world(s), {workers} worker(s)…", file=sys.stderr)
-            rows.append(run_case(front, dev, n, workers=workers))
+            pinned = tree if dev == "cpu" else None
+            rows.append(run_case(front, dev, n, workers=workers, pinned=pinned))
     robot_rows = []
     if not args.quick and choice != "cuda":
         for robot, planner in ROBOT_CASES:
@@ -188,7 +233,16 @@ def run(args: argparse.Namespace) -> int:
             "step (per-world MuJoCo stepping, coupling, sensor and evaluation loops; "
             "`pourbench/bench/env_baseline.py`), in the same process, alternating step by step "
             "with the case (until it has had its own time budget); `speedup_vs_baseline` = "
-            "its time a step / the case's.",
+            "its time a step / the case's."
+            + (
+                f" `pinned_env_steps_per_s`: the same case as the code at `{pinned_sha[:7]}` "
+                "steps it (the last commit before the batched step; "
+                "`pourbench/bench/env_pinned.py`), in child processes of this venv, one per "
+                "worker, alternating step by step with the case; `speedup_vs_pinned` = its "
+                "time a step / the case's: what a user of that code gains."
+                if pinned_sha
+                else ""
+            ),
             "",
             markdown_table(rows),
             "",

@@ -216,9 +216,18 @@ def default_solver_config() -> SolverConfig:
 
     Particles are re-sorted every 6 steps, twice per 10 Hz environment step, so a world's
     re-sorts fall on the same substeps of its episode whether or not its batch held it still
-    for an autoreset (world ``k`` of a vector env matches the single env bit for bit)."""
+    for an autoreset (world ``k`` of a vector env matches the single env bit for bit).
+
+    Water, ink and milk take no implicit viscosity solve (``min_viscous_diffusion``): their
+    viscous diffusion number at this resolution, 3–7e-5, moves no particle that XSPH does not
+    (docs/performance.md), and the solve cost 8 % of a water step."""
     return SolverConfig(
-        spacing=0.008, dt=1.0 / 120.0, iterations=3, max_density_error=0.15, reorder_every=6
+        spacing=0.008,
+        dt=1.0 / 120.0,
+        iterations=3,
+        max_density_error=0.15,
+        reorder_every=6,
+        min_viscous_diffusion=1.0e-3,
     )
 
 

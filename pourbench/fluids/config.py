@@ -60,6 +60,13 @@ class SolverConfig:
             (``LiquidProfile.viscosity_pa_s``) stops when its residual is at most this
             fraction of its right-hand side (:mod:`pourbench.fluids.viscosity`).
         viscosity_max_iterations: cap on that solve's conjugate-gradient iterations a step.
+        min_viscous_diffusion: a world whose liquid's viscous diffusion number ν dt / h² (ν
+            = μ / ρ, h the kernel radius) is below this takes no implicit viscosity solve:
+            at that resolution the liquid's viscous layer over a step is far thinner than a
+            particle, so the liquid is inviscid on the particles and XSPH alone smooths it.
+            0 (the default) solves every liquid with a physical viscosity; Pour-v0 sets 1e-3,
+            which leaves water, ink and milk (3–7e-5 at its resolution) to XSPH and solves
+            oil (2e-3) and the thicker liquids (docs/performance.md).
         laplacian_packing: the settled liquid's pair sum of the viscous Laplacian's kernel
             second moment (Σ_j V g_ij r_ij², :mod:`pourbench.fluids.viscosity`) as a fraction of
             the continuum's; the pair terms are divided by it (measured on settled water,
@@ -109,6 +116,7 @@ class SolverConfig:
     graph: bool = True
     viscosity_tolerance: float = 1.0e-3
     viscosity_max_iterations: int = 100
+    min_viscous_diffusion: float = 0.0
     laplacian_packing: float = 0.897
     viscosity_rate: float = 1.0
     xsph_viscosity: float = 0.01
@@ -137,6 +145,7 @@ class SolverConfig:
             *("relaxation", "scorr_k", "scorr_n", "viscosity_rate", "xsph_viscosity"),
             *("sleep_threshold", "cohesion_accel", "surface_tension_accel", "adhesion_gain"),
             "max_density_error",
+            "min_viscous_diffusion",
         ):
             check_finite(name, getattr(self, name), minimum=0.0)
         check_int("viscosity_max_iterations", self.viscosity_max_iterations, minimum=1)

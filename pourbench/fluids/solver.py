@@ -387,6 +387,15 @@ class PBFSolver:
         out["adhesion_grip"] = adhesion * cfg.adhesion_range * ratio**2
         return out
 
+    def viscous_diffusion(self) -> np.ndarray:
+        """Per world, the viscous diffusion number ν dt / h² its implicit viscosity solve
+        runs with: 0 for a liquid without a physical viscosity, or one below
+        ``SolverConfig.min_viscous_diffusion`` (which XSPH alone smooths)."""
+        cfg = self.config
+        nu = np.array([(liq.viscosity_pa_s or 0.0) / liq.density for liq in self.liquids])
+        number = nu * cfg.dt / cfg.h**2
+        return np.where(number >= cfg.min_viscous_diffusion, number, 0.0)
+
     def _upload(self) -> None:
         """Allocate the device buffers for the host scene and upload it."""
         cfg = self.config
@@ -408,10 +417,11 @@ class PBFSolver:
             cfg, self.device, self.constants, self.half_lists, self.buf, self._up, self.liquids
         )
         self.viscosity = None
-        if any(liq.viscosity_pa_s for liq in self.liquids):
-            c_w = [cfg.dt * (liq.viscosity_pa_s or 0.0) / liq.density for liq in self.liquids]
+        c_w = np.array([cfg.dt * (liq.viscosity_pa_s or 0.0) / liq.density for liq in self.liquids])
+        c_w[self.viscous_diffusion() == 0.0] = 0.0  # ν dt per world; 0: no solve
+        if c_w.any():
             sizes = np.bincount(self._world, minlength=self.num_worlds)
-            self.viscosity = V.ImplicitViscosity(self, np.asarray(c_w), sizes)
+            self.viscosity = V.ImplicitViscosity(self, c_w, sizes)
         self.launches.viscosity = self.viscosity
         self._upload_poses(prev_too=True)
         self._moved = False
