@@ -1,11 +1,11 @@
 """load_policy: the same call serves "pd", "random", a shipped name and a saved model (PPO,
-RecurrentPPO, SAC), each as f(obs, new_episode) -> action; unknown names list what exists."""
+RecurrentPPO, SAC, TQC, CrossQ), each as f(obs, new_episode) -> action; unknown names list
+what exists."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from stable_baselines3 import SAC
 
 from pourbench.agents import load_policy
 from pourbench.agents.pd import PDConfig, PDPourer
@@ -38,13 +38,22 @@ def test_pd_and_random_by_name() -> None:
     assert acts.shape == (5, 2) and np.all(np.abs(acts) <= 1.0)
 
 
-def test_a_saved_sac_model_acts_as_in_memory(tmp_path) -> None:
-    env = SB3PourVecEnv(1, seed=0, workers=1, liquid="water")
-    model = SAC("MlpPolicy", env, learning_starts=0, batch_size=8, seed=2, device="cpu")
+@pytest.mark.parametrize("algorithm", ["sac", "tqc", "crossq"])
+def test_a_saved_off_policy_model_acts_as_in_memory(tmp_path, algorithm) -> None:
+    """Each off-policy learner ``pourbench train`` builds, trained a few updates (two per
+    environment step for TQC and CrossQ), saved and read back by name of its algorithm."""
+    from pourbench.agents.loading import algorithm_of
+    from pourbench.agents.models import make_model
+
+    env = SB3PourVecEnv(2, seed=0, workers=1, liquid="water")
+    model = make_model(algorithm, env, batch_size=8, seed=2, utd=1.0, verbose=0)
+    assert model.gradient_steps == 2  # utd 1 on 2 worlds
+    model.learning_starts = 0
     model.learn(8)
-    model.save(tmp_path / "sac.zip")
+    model.save(tmp_path / f"{algorithm}.zip")
     env.close()
-    act = load_policy(tmp_path / "sac.zip")
+    assert algorithm_of(tmp_path / f"{algorithm}.zip") == algorithm
+    act = load_policy(tmp_path / f"{algorithm}.zip")
     for o in _observations(4):
         np.testing.assert_array_equal(act(o, False), model.predict(o, deterministic=True)[0])
 

@@ -31,7 +31,7 @@ SMALL = ["--num-envs", "2", "--workers", "1", "--n-steps", "32", "--batch-size",
         (["--resume"], "no model to resume"),
         (
             ["--algorithm", "a2c"],
-            "algorithm must be one of ['ppo', 'recurrent_ppo', 'sac'], got 'a2c'",
+            "algorithm must be one of ['ppo', 'recurrent_ppo', 'sac', 'tqc', 'crossq'], got 'a2c'",
         ),
         (["--policy", "cnn"], "policy must be one of ['mlp', 'lstm'], got 'cnn'"),
         (["--budget-steps", "-5"], "budget_steps must be >= 1, got -5"),
@@ -46,7 +46,10 @@ SMALL = ["--num-envs", "2", "--workers", "1", "--n-steps", "32", "--batch-size",
             "seq_len=64 is shorter than the rollout, n_steps=128",
         ),
         (["--policy", "lstm"], "policy 'lstm' does not go with algorithm 'ppo'"),
-        (["--algorithm", "sac"], "algorithm 'sac' trains on one liquid without ICM"),
+        (["--algorithm", "sac"], "algorithm 'sac' trains without the curiosity module"),
+        (["--utd", "0.5"], "utd=0.5 sets an off-policy learner's updates"),
+        (["--algorithm", "tqc", "--no-icm", "--utd", "-1"], "utd must be >= 0"),
+        (["--algorithm", "crossq", "--no-icm", "--sde"], "CrossQ explores with its Gaussian"),
         (["--workers", "3", "--num-envs", "2"], "workers=3 is more than num_envs=2"),
         (["--target-g", "-5"], "target_g must be > 0, got -5.0"),
     ],
@@ -194,11 +197,11 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
         ({"rehearse": True, "curriculum": False}, "rehearse=True draws .* needs the curriculum"),
         (
             {"algorithm": "sac", "icm": False, "curriculum": False, "target_kl": 0.02},
-            "target_kl=0.02 limits PPO's updates; SAC has none",
+            "target_kl=0.02 limits PPO's updates; sac has none",
         ),
         (
-            {"algorithm": "sac", "icm": False, "curriculum": False, "warm_start_steps": 64},
-            "warm_start_steps=64: the PD warm start clones into PPO or RecurrentPPO, not SAC",
+            {"algorithm": "tqc", "icm": False, "curriculum": False, "warm_start_steps": 64},
+            "warm_start_steps=64: the PD warm start clones into PPO or RecurrentPPO, not tqc",
         ),
     ],
 )
@@ -251,9 +254,13 @@ def _args(argv: list[str]):
             "recurrent_ppo",
         ),
         (["--algorithm", "sac", "--no-icm", "--no-curriculum"], "sac"),
+        (["--algorithm", "tqc", "--no-icm", "--utd", "0.5"], "tqc"),
+        (["--algorithm", "crossq", "--no-icm", "--no-curriculum", "--utd", "1"], "crossq"),
     ],
 )
-def test_lstm_and_sac_runs_save_models_that_load_policy_reads(tmp_path, flags, algorithm) -> None:
+def test_lstm_and_off_policy_runs_save_models_that_load_policy_reads(
+    tmp_path, flags, algorithm
+) -> None:
     import numpy as np
 
     from pourbench.agents import load_policy

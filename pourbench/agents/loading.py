@@ -1,8 +1,8 @@
 """Pouring policies by name or path: :func:`load_policy` returns ``f(obs, new_episode) ->
 action`` for the PD baseline ("pd"), a uniform random policy ("random"), a shipped policy
 (``pourbench/agents/policies/<name>.zip`` beside ``<name>.json``, its metadata), or the path
-of a model saved by ``pourbench train`` (PPO, RecurrentPPO or SAC; the algorithm is read from
-the file).
+of a model saved by ``pourbench train`` (PPO, RecurrentPPO, SAC, TQC or CrossQ; the algorithm
+is read from the file).
 
 ``obs`` is one Pour-v0 observation (12 values), the action two values in [-1, 1];
 ``new_episode`` is True on an episode's first step. A recurrent policy keeps its LSTM state
@@ -42,19 +42,25 @@ class UnknownPolicyError(UnknownNameError):
         return (type(self), (self.name,))
 
 
+OFF_POLICY = ("sac", "tqc", "crossq")
+"""The off-policy learners ``pourbench train`` builds (replay buffer, update-to-data ratio)."""
+
 # a saved model's policy class module -> its algorithm
 _ALGORITHMS = {
     "stable_baselines3.common.policies": "ppo",
     "sb3_contrib.common.recurrent.policies": "recurrent_ppo",
     "stable_baselines3.sac.policies": "sac",
+    "sb3_contrib.tqc.policies": "tqc",
+    "sb3_contrib.crossq.policies": "crossq",
 }
 
 
 def algorithm_of(path: str | Path) -> str:
-    """ "ppo", "recurrent_ppo" or "sac": the algorithm a saved SB3 model file was made by.
+    """ "ppo", "recurrent_ppo", "sac", "tqc" or "crossq": the algorithm a saved SB3 model
+    file was made by.
 
     Raises:
-        InvalidParameterError: missing file, not a zip, or not one of those three.
+        InvalidParameterError: missing file, not a zip, or not one of those.
     """
     p = Path(path)
     if not p.is_file():
@@ -70,22 +76,25 @@ def algorithm_of(path: str | Path) -> str:
         ) from None
     if module not in _ALGORITHMS:
         raise InvalidParameterError(
-            f"{str(p)!r} holds a {module} policy; PPO, RecurrentPPO or SAC models are read"
+            f"{str(p)!r} holds a {module} policy; PPO, RecurrentPPO, SAC, TQC or CrossQ "
+            "models are read"
         )
     return _ALGORITHMS[module]
 
 
 def load_model(path: str | Path, env: Any = None, device: str = "cpu") -> Any:
-    """The SB3 model saved at ``path`` (PPO, RecurrentPPO or SAC), on ``env`` if given.
+    """The SB3 model saved at ``path`` (PPO, RecurrentPPO, SAC, TQC or CrossQ), on ``env``
+    if given.
 
     Raises:
         InvalidParameterError: the file is not such a model, or its spaces are not Pour-v0's
             (12 observations, 2 actions).
     """
-    from sb3_contrib import RecurrentPPO
+    from sb3_contrib import TQC, CrossQ, RecurrentPPO
     from stable_baselines3 import PPO, SAC
 
-    cls = {"ppo": PPO, "recurrent_ppo": RecurrentPPO, "sac": SAC}[algorithm_of(path)]
+    classes = {"ppo": PPO, "recurrent_ppo": RecurrentPPO, "sac": SAC, "tqc": TQC, "crossq": CrossQ}
+    cls = classes[algorithm_of(path)]
     try:
         model = cls.load(path, env=env, device=device)
     except Exception as exc:  # any unreadable file is the same bad input

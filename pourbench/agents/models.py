@@ -5,7 +5,10 @@
   3 × 256 layers for the policy and the value (the thesis' "3 layers × 256 hidden units" are
   ML-Agents' dense layers around one recurrent memory; sb3-contrib puts the LSTM first, then
   ``net_arch``). The actor and the critic each have their own LSTM (sb3-contrib's default).
-* **SAC** (the thesis' comparison on one liquid, §6.5.2): actor and twin critics of 3 × 256.
+* **SAC** (the thesis' comparison, §6.5.2), **TQC** and **CrossQ** (sb3-contrib), the
+  off-policy learners: actor and critics of 3 × 256 (CrossQ's critics with its batch
+  renormalisation, without target networks), a replay buffer of a million transitions, and
+  ``utd`` gradient updates per environment step (the update-to-data ratio).
 
 Sequence length: sb3-contrib has no such setting. It backpropagates through each world's
 part of a rollout, ``n_steps`` steps, cut at episode starts and at minibatch edges, so a
@@ -29,6 +32,7 @@ import gymnasium as gym
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
+from pourbench.agents.loading import OFF_POLICY
 from pourbench.errors import InvalidParameterError
 
 HIDDEN = (256, 256, 256)
@@ -36,6 +40,9 @@ HIDDEN = (256, 256, 256)
 LSTM_UNITS = 256
 """LSTM memory of the recurrent PourNet (thesis §6.5.8.1)."""
 GAMMA = 0.995
+REPLAY_SIZE = 1_000_000
+"""Transitions an off-policy learner's replay buffer holds (an hour of training on two cores
+is about 650k)."""
 
 OBS_SCALE = (1.0, 0.0025, 0.0075, 1.0, 0.1, 0.1, 0.1, 100.0, 100.0, 100.0, 100.0, 1.0)
 """The unit each Pour-v0 observation feature is divided by before the networks: density g/ml,
@@ -70,9 +77,11 @@ def make_model(
     learning_rate: float = 3e-4,
     target_kl: float | None = None,
     sde: bool = False,
+    utd: float = 0.0,
     verbose: int = 1,
 ) -> Any:
-    """A new model of ``algorithm`` ("ppo": FNN, "recurrent_ppo": LSTM, "sac") on ``env``.
+    """A new model of ``algorithm`` ("ppo": FNN, "recurrent_ppo": LSTM, or an off-policy
+    learner of :data:`OFF_POLICY`) on ``env``.
 
     Args:
         env: the SB3 VecEnv it trains on.
@@ -85,6 +94,10 @@ def make_model(
             divergence from the rollout's passes this (None: no limit, SB3's default).
         sde: generalized state-dependent exploration (SB3's ``use_sde``), its noise drawn
             once per rollout.
+        utd: the off-policy learners' gradient updates per environment step (one world's
+            step): each vector step of ``env.num_envs`` worlds is followed by
+            ``max(1, round(utd × num_envs))`` updates; 0: one update per vector step (SB3's
+            default).
         verbose: SB3's verbosity.
 
     Raises:
@@ -110,16 +123,30 @@ def make_model(
 
         lstm = {"lstm_hidden_size": LSTM_UNITS, "n_lstm_layers": 1, **arch}
         return RecurrentPPO("MlpLstmPolicy", env, target_kl=target_kl, policy_kwargs=lstm, **common)
-    if algorithm == "sac":
+    if algorithm in OFF_POLICY:
+        from sb3_contrib import TQC, CrossQ
+
+        cls = {"sac": SAC, "tqc": TQC, "crossq": CrossQ}[algorithm]
+        if algorithm == "crossq" and sde:
+            raise InvalidParameterError("sde: CrossQ explores with its Gaussian policy only")
+        if algorithm == "crossq":
+            del common["use_sde"]
         arch = {"net_arch": list(HIDDEN), **extractor}
-        return SAC(
+        return cls(
             "MlpPolicy",
             env,
             batch_size=batch_size,
-            buffer_size=200_000,
+            buffer_size=REPLAY_SIZE,
+            gradient_steps=gradient_steps(utd, env.num_envs),
             policy_kwargs=arch,
             **common,
         )
     raise InvalidParameterError(
-        f"algorithm must be one of ['ppo', 'recurrent_ppo', 'sac'], got {algorithm!r}"
+        f"algorithm must be one of {['ppo', 'recurrent_ppo', *OFF_POLICY]}, got {algorithm!r}"
     )
+
+
+def gradient_steps(utd: float, num_envs: int) -> int:
+    """Gradient updates after each vector step of ``num_envs`` worlds for ``utd`` updates per
+    environment step (0: one, SB3's default)."""
+    return 1 if utd == 0 else max(1, round(utd * num_envs))

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from pourbench.agents.loading import OFF_POLICY
 from pourbench.errors import (
     InvalidParameterError,
     PourbenchError,
@@ -47,7 +48,7 @@ from pourbench.errors import (
     check_positive,
 )
 
-ALGORITHMS = ("ppo", "recurrent_ppo", "sac")
+ALGORITHMS = ("ppo", "recurrent_ppo", *OFF_POLICY)
 POLICIES = ("mlp", "lstm")
 _SAME_ON_RESUME = (
     "algorithm",
@@ -66,6 +67,7 @@ _SAME_ON_RESUME = (
     "rehearse",
     "eval_liquid",
     "target_g",
+    "utd",
 )
 """Settings a resume must keep: SB3 restores its own from model.zip (batch_size, n_steps,
 learning_rate, ...), or they set the worlds, the ICM or every evaluation. ``liquid`` joins
@@ -78,10 +80,14 @@ class TrainArgs:
 
     Attributes:
         algorithm: ppo (with policy mlp: the FNN PourNet), recurrent_ppo (with policy lstm:
-            the LSTM PourNet) or sac (mlp, one liquid, no ICM or curriculum).
+            the LSTM PourNet), or an off-policy learner with policy mlp and no ICM: sac,
+            tqc or crossq (sb3-contrib).
         policy: mlp or lstm (see pourbench.agents.models for the architectures).
         icm: add the curiosity module's intrinsic reward (PPO and RecurrentPPO; off with
             --no-icm).
+        utd: the off-policy learners' gradient updates per environment step, the
+            update-to-data ratio (0: one update per vector step, SB3's default;
+            pourbench.agents.models.gradient_steps).
         curriculum: draw liquids from the curriculum's lessons, switched at 25 % and 50 %
             of the budget; --no-curriculum pours --liquid in every episode.
         num_envs: parallel worlds in the one vector env (the thesis' 32).
@@ -183,6 +189,7 @@ class TrainArgs:
     residual: float = 0.0
     sde: bool = False
     rehearse: bool = False
+    utd: float = 0.0
 
     def __post_init__(self) -> None:
         """Every setting checked at construction, before any training: a run that trains is
@@ -198,17 +205,24 @@ class TrainArgs:
         if (self.policy == "lstm") != (self.algorithm == "recurrent_ppo"):
             raise InvalidParameterError(
                 f"policy {self.policy!r} does not go with algorithm {self.algorithm!r}: lstm "
-                "is trained by recurrent_ppo, mlp by ppo or sac"
+                f"is trained by recurrent_ppo, mlp by ppo or {' / '.join(OFF_POLICY)}"
             )
         for name in ("icm", "curriculum", "resume", "sde", "rehearse"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameterError(
                     f"{name} must be True or False, got {getattr(self, name)!r}"
                 )
-        if self.algorithm == "sac" and (self.icm or self.curriculum):
+        off_policy = self.algorithm in OFF_POLICY
+        if off_policy and self.icm:
             raise InvalidParameterError(
-                "algorithm 'sac' trains on one liquid without ICM: give --no-icm and "
-                f"--no-curriculum (icm={self.icm!r}, curriculum={self.curriculum!r})"
+                f"algorithm {self.algorithm!r} trains without the curiosity module, whose "
+                "updates follow PPO's rollouts: give --no-icm"
+            )
+        check_finite("utd", self.utd, minimum=0.0)
+        if self.utd and not off_policy:
+            raise InvalidParameterError(
+                f"utd={self.utd!r} sets an off-policy learner's updates ({', '.join(OFF_POLICY)}); "
+                f"{self.algorithm} updates once per rollout"
             )
         if self.budget_steps is not None and self.budget_s is not None:
             raise InvalidParameterError(
@@ -230,15 +244,17 @@ class TrainArgs:
         check_int("clone_epochs", self.clone_epochs, minimum=1)
         for name in ("target_kl", "clone_std", "final_error_per_g"):
             check_finite(name, getattr(self, name), minimum=0.0)
-        if self.algorithm == "sac" and self.target_kl:
+        if off_policy and self.target_kl:
             raise InvalidParameterError(
-                f"target_kl={self.target_kl!r} limits PPO's updates; SAC has none"
+                f"target_kl={self.target_kl!r} limits PPO's updates; {self.algorithm} has none"
             )
-        if self.algorithm == "sac" and self.warm_start_steps:
+        if off_policy and self.warm_start_steps:
             raise InvalidParameterError(
                 f"warm_start_steps={self.warm_start_steps!r}: the PD warm start clones into "
-                "PPO or RecurrentPPO, not SAC"
+                f"PPO or RecurrentPPO, not {self.algorithm}"
             )
+        if self.algorithm == "crossq" and self.sde:
+            raise InvalidParameterError("sde: CrossQ explores with its Gaussian policy only")
         if self.dagger_rounds and not self.warm_start_steps:
             raise InvalidParameterError(
                 f"dagger_rounds={self.dagger_rounds!r} relabels the clone's own rollouts: it "
@@ -254,7 +270,7 @@ class TrainArgs:
                 f"residual={self.residual!r}: the scale of the correction added to the PD's "
                 "action (in [-1, 1]) must be in (0, 1], or 0 for none"
             )
-        if self.residual and (self.algorithm == "sac" or self.dagger_rounds):
+        if self.residual and (off_policy or self.dagger_rounds):
             raise InvalidParameterError(
                 f"residual={self.residual!r} trains PPO or RecurrentPPO on top of the PD, "
                 f"without DAgger (algorithm={self.algorithm!r}, "
@@ -283,7 +299,7 @@ class TrainArgs:
         if self.target_g != 0:
             check_positive("target_g", self.target_g)
         # PPO's minibatch is min(batch_size, n_steps * num_envs) samples; SB3 needs two
-        if self.algorithm != "sac" and self.n_steps * self.num_envs < 2:
+        if not off_policy and self.n_steps * self.num_envs < 2:
             raise InvalidParameterError(
                 "n_steps * num_envs (the PPO rollout, and its minibatch size up to batch_size) "
                 f"must be >= 2, got n_steps={self.n_steps!r} and num_envs={self.num_envs!r}"
@@ -533,7 +549,7 @@ def train(
             model = make_model(
                 args.algorithm, venv, n_steps=args.n_steps, batch_size=args.batch_size,
                 seed=args.seed, learning_rate=args.learning_rate,
-                target_kl=args.target_kl or None, sde=args.sde,
+                target_kl=args.target_kl or None, sde=args.sde, utd=args.utd,
             )  # fmt: skip
             if args.residual:  # with a warm start, the cloning then sets the spread anew
                 start_residual(model, args.residual, args.clone_std or None)
@@ -676,9 +692,9 @@ def train(
 
 
 DESCRIPTION = (
-    "Train PourNet on Pour-v0 (PPO with an MLP, RecurrentPPO with an LSTM, or SAC on one "
-    "liquid; curiosity module and liquid curriculum on by default) and compare it with a "
-    "random policy."
+    "Train PourNet on Pour-v0 (PPO with an MLP, RecurrentPPO with an LSTM, or the off-policy "
+    "SAC, TQC or CrossQ; curiosity module and liquid curriculum on by default) and compare it "
+    "with a random policy."
 )
 
 
