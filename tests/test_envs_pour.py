@@ -754,6 +754,47 @@ def test_the_denser_reward_charges_the_final_error_at_the_step_limit() -> None:
     assert rewards[1] == pytest.approx(-1.0 / 3.0 - 0.02 * 50.0)
 
 
+def test_the_shaping_term_is_potential_based() -> None:
+    """With ``RewardConfig.shaping`` the reward gains γΦ(s′) − Φ(s) and nothing else: over a
+    whole episode (its last potential 0) the discounted sum of what it adds is −Φ(s0), whose
+    approach part is the start's closed-form distance; a step toward the receiving
+    container adds, a step away takes off. The liquid moves as without it."""
+    from pourbench.envs.pour_v0 import PourEnv
+    from pourbench.envs.reward import SHAPING_DISTANCE_M, RewardConfig
+
+    gamma, k, steps = 0.99, 0.5, 70
+    start = {"start": (-0.25, 0.0, 0.12), "target_g": 60.0}
+    runs = {}
+    for scale in (0.0, k):
+        env = PourEnv(liquid="water", max_steps=steps,
+                      reward=RewardConfig(shaping=scale, shaping_gamma=gamma))  # fmt: skip
+        env.reset(seed=0, options=start)
+        batch = env.unwrapped.batch
+        phi0 = batch.potential[0]
+        rewards, poured = [], []
+        for t in range(steps):
+            _, r, term, trunc, info = env.step(np.array([1.0 if t < 55 else -1.0, 1.0]))
+            rewards.append(r)
+            poured.append(info["poured_g"])
+            if term or trunc:
+                break
+        runs[scale] = (np.array(rewards), poured, phi0)
+        env.close()
+    (plain, poured0, _), (shaped, poured1, phi0) = runs[0.0], runs[k]
+    assert poured0 == poured1 and poured1[-1] > 0  # it poured, as without the term
+    half = batch._half[batch.cidx[0]]
+    assert phi0 == pytest.approx(k * (1.0 - (0.25 - half) / SHAPING_DISTANCE_M))
+    added = shaped - plain
+    assert np.sum(gamma ** np.arange(len(added)) * added) == pytest.approx(-phi0, abs=1e-9)
+    assert added[0] > 0  # approaching
+    env = PourEnv(liquid="water", reward=RewardConfig(shaping=k, shaping_gamma=gamma))
+    env.reset(seed=0, options=start)
+    _, r, *_ = env.step(np.array([0.0, -1.0]))  # a step away from the receiving container
+    assert r < -1.0 / 250.0
+    with pytest.raises(InvalidParameterError, match="shaping_gamma must be <= 1"):
+        RewardConfig(shaping=1.0, shaping_gamma=1.5)
+
+
 def test_reset_options_made_directly_are_checked_like_a_dict() -> None:
     """A ResetOptions built by hand holds checked values as one parsed from a dict does."""
     from pourbench.envs.options import ResetOptions

@@ -68,6 +68,7 @@ _SAME_ON_RESUME = (
     "eval_liquid",
     "target_g",
     "utd",
+    "shaping",
 )
 """Settings a resume must keep: SB3 restores its own from model.zip (batch_size, n_steps,
 learning_rate, ...), or they set the worlds, the ICM or every evaluation. ``liquid`` joins
@@ -85,6 +86,10 @@ class TrainArgs:
         policy: mlp or lstm (see pourbench.agents.models for the architectures).
         icm: add the curiosity module's intrinsic reward (PPO and RecurrentPPO; off with
             --no-icm).
+        shaping: scale of a potential-based shaping term added to the reward, toward the
+            receiving container and the target (pourbench.envs.reward; 0: none): it keeps
+            the optimal policies and gives a learner from scratch a gradient before its
+            first pour reaches the scale.
         utd: the off-policy learners' gradient updates per environment step, the
             update-to-data ratio (0: one update per vector step, SB3's default;
             pourbench.agents.models.gradient_steps).
@@ -190,6 +195,7 @@ class TrainArgs:
     sde: bool = False
     rehearse: bool = False
     utd: float = 0.0
+    shaping: float = 0.0
 
     def __post_init__(self) -> None:
         """Every setting checked at construction, before any training: a run that trains is
@@ -242,7 +248,7 @@ class TrainArgs:
         for name in ("seed", "workers", "eval_every_steps", "warm_start_steps", "dagger_rounds"):
             check_int(name, getattr(self, name), minimum=0)
         check_int("clone_epochs", self.clone_epochs, minimum=1)
-        for name in ("target_kl", "clone_std", "final_error_per_g"):
+        for name in ("target_kl", "clone_std", "final_error_per_g", "shaping"):
             check_finite(name, getattr(self, name), minimum=0.0)
         if off_policy and self.target_kl:
             raise InvalidParameterError(
@@ -525,10 +531,13 @@ def train(
         env_kw["rehearse"] = args.rehearse
     if args.target_g:
         env_kw["target_range_g"] = (args.target_g, args.target_g)
-    if args.final_error_per_g:
+    if args.final_error_per_g or args.shaping:
+        from pourbench.agents.models import GAMMA
         from pourbench.envs.reward import RewardConfig
 
-        env_kw["reward"] = RewardConfig(final_error_per_g=args.final_error_per_g)
+        env_kw["reward"] = RewardConfig(
+            final_error_per_g=args.final_error_per_g, shaping=args.shaping, shaping_gamma=GAMMA
+        )
     base = SB3PourVecEnv(
         args.num_envs, seed=args.seed + 1000 * state["sessions"], workers=args.workers or None,
         **env_kw,

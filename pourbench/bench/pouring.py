@@ -100,6 +100,8 @@ def describe(name: str) -> str:
     reward = "Algorithm 5"
     if cfg.get("final_error_per_g"):
         reward += f" + {cfg['final_error_per_g']:g} per gram of final error"
+    if cfg.get("shaping"):
+        reward += f" + potential-based shaping {cfg['shaping']:g}"
     parts = [
         f"{meta['algorithm']} ({meta['policy']})",
         f"{meta['steps']} steps in {meta['wall_time_s']:.0f} s on {cfg['num_envs']} worlds",

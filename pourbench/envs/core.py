@@ -38,7 +38,12 @@ from pourbench.envs.action_handler import ACTION_MODES, ActionLimits, as_actions
 from pourbench.envs.curriculum import Lesson, draw_liquid, load_curriculum
 from pourbench.envs.observation import GRAVITY, WeightFilter, counter_normals
 from pourbench.envs.options import ResetOptions, known_liquid
-from pourbench.envs.reward import ErrorHistory, RewardConfig, extrinsic_reward
+from pourbench.envs.reward import (
+    ErrorHistory,
+    RewardConfig,
+    extrinsic_reward,
+    shaping_potential,
+)
 from pourbench.errors import (
     CapacityError,
     InvalidParameterError,
@@ -528,6 +533,7 @@ class PourBatch:
         self.target_g = np.zeros(n)
         self.initial_g = np.zeros(n)
         self.particle_g = np.zeros(n)  # mass of one particle, g
+        self.potential = np.zeros(n)  # the reward's shaping potential Φ (RewardConfig.shaping)
         self.liquid_obs = np.zeros((n, 5))  # density / 1000, cohesion, tension, viscosity, adhesion
         self.noise_key = np.zeros(n, np.uint64)
         self.noise_count = np.zeros(n, np.uint64)
@@ -682,6 +688,7 @@ class PourBatch:
         n = self.solver.fill(world, self.pour_col[world], draw.initial_g, at_least=True)
         self.initial_g[world] = self.worlds[world].initial_g = n * particle_g
         self.filter.reset(world, 0.0)  # the empty receiving container weighs 0 g
+        self.potential[world] = self.shaping_potential()[world]
 
     def flush(self) -> None:
         """Upload pending particle/collider changes now, so the next step sweeps every
@@ -805,6 +812,11 @@ class PourBatch:
         )
         terminated = (collided | finished) & ~diverged
         truncated = ((self.steps >= cfg.max_steps) & ~terminated) | diverged
+        if cfg.reward.shaping:
+            potential = np.where(terminated | truncated, 0.0, self.shaping_potential())
+            shaped = cfg.reward.shaping_gamma * potential - self.potential
+            reward = reward + np.where(active, shaped, 0.0)
+            self.potential = np.where(active, potential, self.potential)
         info["collided"] = collided
         info["sim_diverged"] = diverged
         info["is_success"] = finished & (info["error_g"] <= cfg.reward.success_g)
@@ -814,6 +826,16 @@ class PourBatch:
         return self.observe(avg), reward.astype(float), terminated, truncated, info
 
     # ------------------------------------------------------------------------------ read
+
+    def shaping_potential(self) -> np.ndarray:
+        """(n,) the reward's shaping potential Φ of every world's state (0 without
+        ``RewardConfig.shaping``): the pouring container's horizontal distance from the
+        square over the receiving container where Algorithm 4 lets it pour, and the scale's
+        reading against the target."""
+        d_xy = np.abs(self.target_pos[:2] - self.base[:, :2]) - self._half[self.cidx][:, None]
+        distance = np.linalg.norm(np.maximum(d_xy, 0.0), axis=1)
+        target = np.maximum(self.target_g, 1e-9)  # worlds never reset have no target
+        return shaping_potential(distance, self.filter.value_g, target, self.config.reward.shaping)
 
     def collided(self) -> np.ndarray:
         """(n,) whether each world's pouring container overlaps the receiving one."""

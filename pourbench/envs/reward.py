@@ -10,6 +10,16 @@ A denser option, off in the thesis' reward: ``final_error_per_g`` > 0 also takes
 ``final_error_per_g × error`` (g) off the reward when an episode ends normally or at the
 step limit, so that every gram of the final error counts and not only the two thresholds
 (and a policy cannot escape it by never finishing).
+
+A shaping option, off in the thesis' reward: ``shaping`` = k > 0 adds the potential-based
+term F = γ Φ(s′) − Φ(s) of Ng, Harada & Russell (1999, "Policy invariance under reward
+transformations"), with Φ = k (approach + poured): approach = 1 − min(d / 0.3 m, 1), d the
+pouring container's horizontal distance from where it pours over the receiving one, and
+poured = min(measured / target, 1), the scale's reading; Φ = 0 once the episode has ended.
+A potential-based term leaves the optimal policies as they are (for the learner's discount
+γ, ``shaping_gamma``); it gives a learner that starts from noise a gradient toward the
+receiving container, which Algorithm 5 gives only once liquid reaches the scale (a random
+policy never gets there in Algorithm 4's action mode).
 """
 
 from __future__ import annotations
@@ -18,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pourbench.errors import check_finite, check_int
+from pourbench.errors import InvalidParameterError, check_finite, check_int
 
 
 @dataclass(frozen=True)
@@ -31,18 +41,26 @@ class RewardConfig:
         window: number ``n`` of past completed episodes in the running average.
         final_error_per_g: reward taken off per gram of error at a normal end or at the
             step limit (0: the thesis' Algorithm 5).
+        shaping: scale k of the potential-based shaping term (module docstring; 0: none).
+        shaping_gamma: the learner's discount γ the shaping term is made for.
     """
 
     success_g: float = 10.0
     average_success_g: float = 20.0
     window: int = 10
     final_error_per_g: float = 0.0
+    shaping: float = 0.0
+    shaping_gamma: float = 0.995
 
     def __post_init__(self) -> None:
         check_finite("reward.success_g", self.success_g, minimum=0.0)
         check_finite("reward.average_success_g", self.average_success_g, minimum=0.0)
         check_int("reward.window", self.window, minimum=1)
         check_finite("reward.final_error_per_g", self.final_error_per_g, minimum=0.0)
+        check_finite("reward.shaping", self.shaping, minimum=0.0)
+        gamma = check_finite("reward.shaping_gamma", self.shaping_gamma, minimum=0.0)
+        if gamma > 1.0:
+            raise InvalidParameterError(f"reward.shaping_gamma must be <= 1, got {gamma!r}")
 
 
 def extrinsic_reward(
@@ -77,6 +95,21 @@ def extrinsic_reward(
         charged = bonus if timed_out is None else bonus | timed_out
         r = r - np.where(charged, config.final_error_per_g * error_g, 0.0)
     return r
+
+
+SHAPING_DISTANCE_M = 0.3
+"""The approach distance over which the shaping potential's approach part falls to 0, m (the
+farthest start of Pour-v0's default range is 0.3 m from the receiving container)."""
+
+
+def shaping_potential(
+    distance_m: np.ndarray, measured_g: np.ndarray, target_g: np.ndarray, scale: float
+) -> np.ndarray:
+    """Φ = ``scale`` (approach + poured) per world (module docstring): ``distance_m`` from
+    the pouring position, the scale's reading ``measured_g`` and the ``target_g``."""
+    approach = 1.0 - np.minimum(distance_m / SHAPING_DISTANCE_M, 1.0)
+    poured = np.clip(measured_g / target_g, 0.0, 1.0)
+    return scale * (approach + poured)
 
 
 class ErrorHistory:
