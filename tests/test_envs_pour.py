@@ -793,6 +793,10 @@ def test_the_shaping_term_is_potential_based() -> None:
     assert r < -1.0 / 250.0
     with pytest.raises(InvalidParameterError, match="shaping_gamma must be <= 1"):
         RewardConfig(shaping=1.0, shaping_gamma=1.5)
+    from pourbench.envs.robot_pour import RobotPourEnv
+
+    with pytest.raises(InvalidParameterError, match="PourRobot-v0 .* has no shaping term"):
+        RobotPourEnv(reward=RewardConfig(shaping=1.0))
 
 
 def test_reset_options_made_directly_are_checked_like_a_dict() -> None:

@@ -233,6 +233,11 @@ class RobotPourEnv(gym.Env):
                 f"render_mode must be None or 'rgb_array', got {render_mode!r}"
             )
         cfg = make_config(**kwargs)
+        if cfg.reward.shaping:
+            raise InvalidParameterError(
+                f"reward.shaping={cfg.reward.shaping!r}: PourRobot-v0 pours with the policies "
+                "Pour-v0 trained and has no shaping term; give it Pour-v0's reward without it"
+            )
         self.default_liquid = None if cfg.liquid is None else known_liquid(cfg.liquid)
         self.settings = settings or RobotSettings()
         self.robot, self.planner_name, self.config = robot, planner, cfg
