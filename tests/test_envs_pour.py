@@ -795,7 +795,7 @@ def test_the_shaping_term_is_potential_based() -> None:
         RewardConfig(shaping=1.0, shaping_gamma=1.5)
     from pourbench.envs.robot_pour import RobotPourEnv
 
-    with pytest.raises(InvalidParameterError, match="PourRobot-v0 .* has no shaping term"):
+    with pytest.raises(InvalidParameterError, match=r"PourRobot-v0 .* has no shaping term"):
         RobotPourEnv(reward=RewardConfig(shaping=1.0))
 
 
