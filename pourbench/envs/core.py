@@ -812,8 +812,10 @@ class PourBatch:
         )
         terminated = (collided | finished) & ~diverged
         truncated = ((self.steps >= cfg.max_steps) & ~terminated) | diverged
-        if cfg.reward.shaping:  # a truncated episode is bootstrapped by the learner: Φ kept
-            potential = np.where(terminated, 0.0, self.shaping_potential())
+        if cfg.reward.shaping:  # Φ = 0 at every end the learner does not bootstrap
+            potential = np.where(
+                terminated | (truncated & ~diverged), 0.0, self.shaping_potential()
+            )
             shaped = cfg.reward.shaping_gamma * potential - self.potential
             reward = reward + np.where(active, shaped, 0.0)
             self.potential = np.where(active, potential, self.potential)

@@ -15,9 +15,10 @@ A shaping option, off in the thesis' reward: ``shaping`` = k > 0 adds the potent
 term F = γ Φ(s′) − Φ(s) of Ng, Harada & Russell (1999, "Policy invariance under reward
 transformations"), with Φ = k (approach + poured): approach = 1 − min(d / 0.3 m, 1), d the
 pouring container's horizontal distance from where it pours over the receiving one, and
-poured = min(measured / target, 1), the scale's reading; Φ = 0 once the episode has
-terminated (not when it is truncated at the step limit or by a diverged liquid: a learner
-bootstraps a truncated episode's value from its last state, whose potential stands).
+poured = min(measured / target, 1), the scale's reading. Φ = 0 once the episode has ended,
+at the step limit too (the learners take it as a terminal state,
+:mod:`pourbench.agents.sb3`); only where a diverged liquid truncated it, whose value the
+learner bootstraps from its last state, does that state's potential stand.
 A potential-based term leaves the optimal policies as they are (for the learner's discount
 γ, ``shaping_gamma``); it gives a learner that starts from noise a gradient toward the
 receiving container, which Algorithm 5 gives only once liquid reaches the scale (a random
