@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test test-slow bench lint format clean
+.PHONY: install demo test test-slow bench gpu-check lint format clean
 
 install: $(STAMP)
 
@@ -26,6 +26,16 @@ test-slow: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/pourbench bench all
+
+# On a machine with a CUDA GPU (docs/performance.md): the gpu tests, Pour-v0's throughput at
+# 256, 1024 and 4096 worlds (leaderboard/env_cuda.*), and two minutes of training with the
+# liquid on the GPU, which prints SB3's env steps per second (time/fps).
+gpu-check: $(STAMP)
+	$(BIN)/python -m pytest -q -m gpu
+	$(BIN)/pourbench bench env --device cuda --against none
+	$(BIN)/pourbench train --device cuda --num-envs 256 --workers 1 --n-steps 16 \
+		--no-icm --no-curriculum --eval-every-steps 0 --eval-episodes 1 --budget-s 120 \
+		--out runs/gpu-check/train-$$(date +%s)
 
 lint: $(STAMP)
 	$(BIN)/ruff check pourbench tests

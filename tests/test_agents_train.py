@@ -51,12 +51,23 @@ SMALL = ["--num-envs", "2", "--workers", "1", "--n-steps", "32", "--batch-size",
         (["--algorithm", "tqc", "--no-icm", "--utd", "-1"], "utd must be >= 0"),
         (["--algorithm", "crossq", "--no-icm", "--sde"], "CrossQ explores with its Gaussian"),
         (["--workers", "3", "--num-envs", "2"], "workers=3 is more than num_envs=2"),
+        (["--device", "tpu"], "device must be 'cpu' or 'cuda', got 'tpu'"),
         (["--target-g", "-5"], "target_g must be > 0, got -5.0"),
     ],
 )
 def test_bad_input_is_one_clear_line(tmp_path, capsys, argv, words) -> None:
     assert main([*argv, "--out", str(tmp_path / "run")]) == 2
     assert words in capsys.readouterr().err
+
+
+def test_training_on_cuda_without_a_gpu_is_refused(tmp_path, capsys) -> None:
+    from pourbench.fluids.solver import cuda_available
+
+    if cuda_available():
+        pytest.skip("this machine has a CUDA device")
+    assert main(["--device", "cuda", "--out", str(tmp_path / "run")]) == 2
+    assert "device='cuda': Warp sees no CUDA device" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
 
 
 def test_pourbench_train_takes_the_same_flags(tmp_path, capsys) -> None:

@@ -90,6 +90,8 @@ class TrainArgs:
             receiving container and the target (pourbench.envs.reward; 0: none): it keeps
             the optimal policies and gives a learner from scratch a gradient before its
             first pour reaches the scale.
+        device: where the worlds' liquid is simulated: cpu, or cuda (cuda:N) where Warp
+            sees a CUDA device; the networks train on the CPU either way.
         utd: the off-policy learners' gradient updates per environment step, the
             update-to-data ratio (0: one update per vector step, SB3's default;
             pourbench.agents.models.gradient_steps).
@@ -196,6 +198,7 @@ class TrainArgs:
     rehearse: bool = False
     utd: float = 0.0
     shaping: float = 0.0
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         """Every setting checked at construction, before any training: a run that trains is
@@ -317,6 +320,15 @@ class TrainArgs:
                 f"seq_len={self.seq_len!r} is {'longer' if longer else 'shorter'} than the "
                 f"rollout, n_steps={self.n_steps!r}{cut}; set n_steps to the LSTM sequence length"
             )
+        if not isinstance(self.device, str) or not (
+            self.device == "cpu" or self.device.startswith("cuda")
+        ):
+            raise InvalidParameterError(f"device must be 'cpu' or 'cuda', got {self.device!r}")
+        if self.device != "cpu":
+            from pourbench.fluids.solver import cuda_available
+
+            if not cuda_available():
+                raise InvalidParameterError(f"device={self.device!r}: Warp sees no CUDA device")
         if not isinstance(self.liquid, str) or not self.liquid:
             raise InvalidParameterError(f"liquid must be a liquid name, got {self.liquid!r}")
         if not isinstance(self.eval_liquid, str):
@@ -531,6 +543,10 @@ def train(
         env_kw["rehearse"] = args.rehearse
     if args.target_g:
         env_kw["target_range_g"] = (args.target_g, args.target_g)
+    if args.device != "cpu":
+        from pourbench.envs import default_solver_config
+
+        env_kw["solver"] = replace(default_solver_config(), device=args.device)
     if args.final_error_per_g or args.shaping:
         from pourbench.agents.models import GAMMA
         from pourbench.envs.reward import RewardConfig
