@@ -34,13 +34,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from pourbench.bench._jobs import import_ray
 
         import_ray()  # before any work: says how to install it
-    if args.against is not None:
+    against = getattr(args, "against", None)
+    if against is not None:
         if "env" not in suites:
             raise InvalidParameterError(f"--against: bench {args.suite} has no pinned comparison")
-        if args.against.lower() != "none":
+        if against.lower() != "none":
             from pourbench.bench.env_pinned import resolve_commit
 
-            resolve_commit(args.against, Path(__file__).resolve().parent.parent)
+            resolve_commit(against, Path(__file__).resolve().parent.parent)
     if args.device == "cuda":
         from pourbench.fluids.solver import cuda_available
 
