@@ -758,7 +758,8 @@ def test_the_shaping_term_is_potential_based() -> None:
     """With ``RewardConfig.shaping`` the reward gains γΦ(s′) − Φ(s) and nothing else: over a
     whole episode that ends at the step limit (a terminal state for the learners) the
     discounted sum of what it adds is −Φ(s0), from the closed-form distance; a step toward
-    the receiving container adds, a step away takes off. The liquid moves as without it."""
+    the receiving container adds, and so does tilting over it, a step away takes off. The
+    liquid moves as without it."""
     from pourbench.envs.pour_v0 import PourEnv
     from pourbench.envs.reward import SHAPING_DISTANCE_M, RewardConfig
 
@@ -788,6 +789,7 @@ def test_the_shaping_term_is_potential_based() -> None:
     added = shaped - plain
     assert np.sum(gamma ** np.arange(len(added)) * added) == pytest.approx(-phi0, abs=1e-9)
     assert added[0] > 0  # approaching
+    assert added[25] > 0  # tilting over the receiving container, before liquid reaches it
     env = PourEnv(liquid="water", reward=RewardConfig(shaping=k, shaping_gamma=gamma))
     env.reset(seed=0, options=start)
     _, r, *_ = env.step(np.array([0.0, -1.0]))  # a step away from the receiving container

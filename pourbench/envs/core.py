@@ -832,12 +832,14 @@ class PourBatch:
     def shaping_potential(self) -> np.ndarray:
         """(n,) the reward's shaping potential Φ of every world's state (0 without
         ``RewardConfig.shaping``): the pouring container's horizontal distance from the
-        square over the receiving container where Algorithm 4 lets it pour, and the scale's
-        reading against the target."""
+        square over the receiving container where Algorithm 4 lets it pour, its tilt, and the
+        scale's reading against the target."""
         d_xy = np.abs(self.target_pos[:2] - self.base[:, :2]) - self._half[self.cidx][:, None]
         distance = np.linalg.norm(np.maximum(d_xy, 0.0), axis=1)
         target = np.maximum(self.target_g, 1e-9)  # worlds never reset have no target
-        return shaping_potential(distance, self.filter.value_g, target, self.config.reward.shaping)
+        return shaping_potential(
+            distance, self.tilt, self.filter.value_g, target, self.config.reward.shaping
+        )
 
     def collided(self) -> np.ndarray:
         """(n,) whether each world's pouring container overlaps the receiving one."""

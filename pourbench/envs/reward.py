@@ -13,9 +13,12 @@ step limit, so that every gram of the final error counts and not only the two th
 
 A shaping option, off in the thesis' reward: ``shaping`` = k > 0 adds the potential-based
 term F = γ Φ(s′) − Φ(s) of Ng, Harada & Russell (1999, "Policy invariance under reward
-transformations"), with Φ = k (approach + poured): approach = 1 − min(d / 0.3 m, 1), d the
-pouring container's horizontal distance from where it pours over the receiving one, and
-poured = min(measured / target, 1), the scale's reading. Φ = 0 once the episode has ended,
+transformations"), with Φ = k (approach + tilted (1 − poured) / 2 + poured): approach = 1 −
+min(d / 0.3 m, 1), d the pouring container's horizontal distance from where it pours over
+the receiving one; tilted = min(tilt / 90°, 1), the tilt a pour takes before liquid reaches
+the scale, counted while the scale still reads short of the target; and poured = min(measured
+/ target, 1), the scale's reading (Φ grows with the pour at any tilt, and tilting back after
+it costs nothing). Φ = 0 once the episode has ended,
 at the step limit too (the learners take it as a terminal state,
 :mod:`pourbench.agents.sb3`); only where a diverged liquid truncated it, whose value the
 learner bootstraps from its last state, does that state's potential stand.
@@ -105,14 +108,24 @@ SHAPING_DISTANCE_M = 0.3
 farthest start of Pour-v0's default range is 0.3 m from the receiving container)."""
 
 
+SHAPING_TILT_RAD = 0.5 * np.pi
+"""The tilt at which the shaping potential's tilt part is full, rad."""
+
+
 def shaping_potential(
-    distance_m: np.ndarray, measured_g: np.ndarray, target_g: np.ndarray, scale: float
+    distance_m: np.ndarray,
+    tilt_rad: np.ndarray,
+    measured_g: np.ndarray,
+    target_g: np.ndarray,
+    scale: float,
 ) -> np.ndarray:
-    """Φ = ``scale`` (approach + poured) per world (module docstring): ``distance_m`` from
-    the pouring position, the scale's reading ``measured_g`` and the ``target_g``."""
+    """Φ per world (module docstring): ``distance_m`` from the pouring position, the pouring
+    container's ``tilt_rad``, the scale's reading ``measured_g`` and the ``target_g``, times
+    ``scale``."""
     approach = 1.0 - np.minimum(distance_m / SHAPING_DISTANCE_M, 1.0)
+    tilted = np.minimum(tilt_rad / SHAPING_TILT_RAD, 1.0)
     poured = np.clip(measured_g / target_g, 0.0, 1.0)
-    return scale * (approach + poured)
+    return scale * (approach + 0.5 * tilted * (1.0 - poured) + poured)
 
 
 class ErrorHistory:
