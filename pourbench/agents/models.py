@@ -41,8 +41,7 @@ LSTM_UNITS = 256
 """LSTM memory of the recurrent PourNet (thesis §6.5.8.1)."""
 GAMMA = 0.995
 REPLAY_SIZE = 1_000_000
-"""Transitions an off-policy learner's replay buffer holds (an hour of training on two cores
-is about 650k)."""
+"""Transitions an off-policy learner's replay buffer holds."""
 
 OBS_SCALE = (1.0, 0.0025, 0.0075, 1.0, 0.1, 0.1, 0.1, 100.0, 100.0, 100.0, 100.0, 1.0)
 """The unit each Pour-v0 observation feature is divided by before the networks: density g/ml,
@@ -127,9 +126,9 @@ def make_model(
         from sb3_contrib import TQC, CrossQ
 
         cls = {"sac": SAC, "tqc": TQC, "crossq": CrossQ}[algorithm]
-        if algorithm == "crossq" and sde:
-            raise InvalidParameterError("sde: CrossQ explores with its Gaussian policy only")
-        if algorithm == "crossq":
+        if algorithm == "crossq":  # no gSDE in CrossQ
+            if sde:
+                raise InvalidParameterError("sde: CrossQ explores with its Gaussian policy only")
             del common["use_sde"]
         arch = {"net_arch": list(HIDDEN), **extractor}
         return cls(

@@ -28,8 +28,7 @@ from pathlib import Path
 from pourbench.errors import InvalidParameterError
 
 PINNED_SHA = "f8f94b4"
-"""The default pinned commit: the last before the batched step, the code whose env steps
-per second issue 55 asks to double."""
+"""The default pinned commit: the last before the batched step."""
 
 PINNED_ROOT = Path("runs") / "pinned"
 
@@ -112,7 +111,9 @@ def source_tree(sha: str, repo: Path, root: Path = PINNED_ROOT) -> Path:
 class PinnedPour:
     """Pour-v0 of the source ``tree`` in ``workers`` child processes: ``front_end`` "single"
     (one world, ``workers`` 1) or "vector" (``worlds`` split evenly over the children, child
-    k reset with seed k). :meth:`step` steps every child once; close it when done."""
+    k's first world reset with seed k × worlds / workers, so that the worlds' seeds are 0, 1,
+    … as in the case's own vector env). :meth:`step` steps every child once; close it when
+    done."""
 
     def __init__(self, tree: Path, front_end: str, worlds: int, workers: int = 1) -> None:
         if front_end == "single" and (worlds, workers) != (1, 1):
@@ -120,9 +121,10 @@ class PinnedPour:
         if worlds % workers:
             raise InvalidParameterError(f"{worlds} worlds do not split over {workers} workers")
         env = {**os.environ, "PYTHONPATH": str(tree.resolve())}
+        each = worlds // workers
         self.children = [
             subprocess.Popen(
-                [sys.executable, "-c", CHILD, front_end, str(worlds // workers), str(k)],
+                [sys.executable, "-c", CHILD, front_end, str(each), str(k * each)],
                 cwd=tree,
                 env=env,
                 stdin=subprocess.PIPE,
@@ -131,7 +133,6 @@ class PinnedPour:
             )
             for k in range(workers)
         ]
-        self.worlds = worlds
         for child in self.children:
             where = self._answer(child)["ready"]
             if not Path(where).resolve().is_relative_to(tree.resolve()):

@@ -223,9 +223,9 @@ def default_solver_config() -> SolverConfig:
     re-sorts fall on the same substeps of its episode whether or not its batch held it still
     for an autoreset (world ``k`` of a vector env matches the single env bit for bit).
 
-    Water, ink and milk take no implicit viscosity solve (``min_viscous_diffusion``): their
-    viscous diffusion number at this resolution, 3–7e-5, moves no particle that XSPH does not
-    (docs/performance.md), and the solve cost 8 % of a water step."""
+    Water, ink and milk take no implicit viscosity solve (``min_viscous_diffusion``): at their
+    viscous diffusion number at this resolution, 3–7e-5, the solve moves no particle
+    (docs/performance.md gives what it cost)."""
     return SolverConfig(
         spacing=0.008,
         dt=1.0 / 120.0,
@@ -688,7 +688,8 @@ class PourBatch:
         n = self.solver.fill(world, self.pour_col[world], draw.initial_g, at_least=True)
         self.initial_g[world] = self.worlds[world].initial_g = n * particle_g
         self.filter.reset(world, 0.0)  # the empty receiving container weighs 0 g
-        self.potential[world] = self.shaping_potential()[world]
+        if self.config.reward.shaping:
+            self.potential[world] = self.shaping_potential()[world]
 
     def flush(self) -> None:
         """Upload pending particle/collider changes now, so the next step sweeps every

@@ -16,12 +16,11 @@ term F = γ Φ(s′) − Φ(s) of Ng, Harada & Russell (1999, "Policy invariance
 transformations"), with Φ = k (approach + tilted (1 − poured) / 2 + poured): approach = 1 −
 min(d / 0.3 m, 1), d the pouring container's horizontal distance from where it pours over
 the receiving one; tilted = min(tilt / 90°, 1), the tilt a pour takes before liquid reaches
-the scale, counted while the scale still reads short of the target; and poured = min(measured
-/ target, 1), the scale's reading (Φ grows with the pour at any tilt, and tilting back after
-it costs nothing). Φ = 0 once the episode has ended,
-at the step limit too (the learners take it as a terminal state,
-:mod:`pourbench.agents.sb3`); only where a diverged liquid truncated it, whose value the
-learner bootstraps from its last state, does that state's potential stand.
+the scale, its weight fading as the scale fills; and poured = min(measured / target, 1), the
+scale's reading (Φ grows with the pour at any tilt, and tilting back after it costs
+nothing). Φ = 0 once the episode has ended, at the step limit too (the learners take it as a
+terminal state, :mod:`pourbench.agents.sb3`); only where a diverged liquid truncated it,
+whose value the learner bootstraps from its last state, does that state's potential stand.
 A potential-based term leaves the optimal policies as they are (for the learner's discount
 γ, ``shaping_gamma``); it gives a learner that starts from noise a gradient toward the
 receiving container, which Algorithm 5 gives only once liquid reaches the scale (a random

@@ -315,7 +315,6 @@ class PBFSolver:
         if liquid is not None:
             self.set_liquid(world, liquid)
         m = self.particle_mass(world)
-        n = round(mass_g * 1e-3 / m)
         if at_least:  # the least n with n × (particle grams) ≥ mass_g in float arithmetic
             grams = m * 1e3
             n = math.ceil(mass_g / grams)
@@ -323,6 +322,8 @@ class PBFSolver:
                 n += 1
             while n > 0 and (n - 1) * grams >= mass_g:
                 n -= 1
+        else:
+            n = round(mass_g * 1e-3 / m)
         local = container_lattice(c.shape, self.config.spacing)
         if n > len(local):
             cap = len(local) * m * 1e3
