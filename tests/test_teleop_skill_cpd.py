@@ -110,6 +110,26 @@ def test_registration_beats_unregistered_skill_on_a_shifted_letter(library) -> N
     assert jumps["standard"] > 0.05  # the unregistered skill is 10 cm away
 
 
+def test_the_takeover_offset_fades_linearly_onto_the_registered_skill(library) -> None:
+    # the robot is off the registered skill by the registration's residual at the switch:
+    # with takeover_step 1 (the thesis) it jumps onto the skill, with 0.1 each packet from
+    # the switch on removes a tenth of that offset, so the command reaches the same skill
+    # points 10 packets later
+    human = _human(shift=(0.10, 0.0))
+    outage = Outage(300 * DT_S - 1e-6, 1.5)
+    jump, _, _, _ = _replay(library, human, outage, takeover_step=1.0)
+    fade, robot, states, _ = _replay(library, human, outage, takeover_step=0.1)
+    ref = _replay(library, human, outage, takeover_step=1.0)[1]
+    assert states[301] == "skill" and all(s == "skill" for s in states[301:345])
+    np.testing.assert_array_equal(fade.registrations[0].trajectory, jump.registrations[0].trajectory)
+    offset = robot[300] - ref[301]
+    assert np.linalg.norm(offset) > 1e-4  # the residual is real, not zero
+    for k in range(11):
+        weight = max(0.0, 1.0 - (k + 1) / 10)
+        np.testing.assert_allclose(robot[301 + k], ref[301 + k] + weight * offset, atol=1e-9)
+    np.testing.assert_allclose(robot[310:345], ref[310:345], atol=1e-12)
+
+
 def test_no_shared_autonomy_holds_then_jumps(library: SkillLibrary) -> None:
     human = _human()
     outage = Outage(300 * DT_S - 1e-6, 45 * DT_S)  # packets 300 .. 344 are lost

@@ -79,7 +79,12 @@ class SkillCPDConfig:
         delta_d: Δd sampling distance, m.
         rigid_error: rigid registration accepted below this mean distance, m (0.1 cm).
         window: closest-step search window, ± steps.
-        alpha_step: alpha increment per packet during the hand-back.
+        alpha_step: alpha increment per packet during the hand-back (thesis: 0.1).
+        takeover_step: fraction of the takeover offset removed per packet (1.0, the
+            thesis: the robot jumps onto the registered skill). At the switch the robot is
+            off the registered skill by the registration's residual at its position; the
+            command keeps ``1 - j * takeover_step`` of that offset at the ``j``-th packet of
+            the skill (the switch's packet is the first) while the skill advances.
         cpd_w: CPD outlier weight.
         beta: non-rigid kernel width (normalised units).
         lmbda: non-rigid regularisation weight.
@@ -93,6 +98,7 @@ class SkillCPDConfig:
     Raises:
         InvalidParameterError: at construction, for an unknown mode; ``dt``, ``deadline``,
             ``delta_d``, ``alpha_step``, ``beta`` or ``lmbda`` not finite and > 0;
+            ``takeover_step`` outside (0, 1];
             ``min_confidence`` outside [0, 1]; ``rigid_error`` or ``cpd_tol`` negative or
             not finite; ``cpd_w`` outside [0, 1); ``window`` not an integer >= 0;
             ``cpd_max_iter`` not an integer >= 1.
@@ -106,6 +112,7 @@ class SkillCPDConfig:
     rigid_error: float = 0.001
     window: int = 10
     alpha_step: float = 0.1
+    takeover_step: float = 1.0
     cpd_w: float = 0.1
     beta: float = 3.0
     lmbda: float = 3.0
@@ -120,6 +127,11 @@ class SkillCPDConfig:
             raise InvalidParameterError(f"mode must be one of {MODES}, got {self.mode!r}")
         for name in ("dt", "deadline", "delta_d", "alpha_step", "beta", "lmbda"):
             check_positive(name, getattr(self, name))
+        if check_positive("takeover_step", self.takeover_step) > 1.0:
+            raise InvalidParameterError(
+                f"takeover_step (a fraction of the offset per packet) must be in (0, 1], "
+                f"got {self.takeover_step!r}"
+            )
         conf = check_finite("min_confidence", self.min_confidence, minimum=0.0)
         if conf > 1.0:
             raise InvalidParameterError(
@@ -346,6 +358,8 @@ class SkillCPD:
         self._skill: np.ndarray | None = None
         self._cum: np.ndarray | None = None
         self._s = 0.0  # arc length along the skill, m
+        self._offset: np.ndarray | None = None  # robot minus the skill's start at the switch, m
+        self._offset_weight = 0.0  # fraction of that offset still in the command
         self._path_len = 0.0  # operator path length between consecutive direct packets, m
         self._path_time = 0.0  # and the time it took, s
         self._last_packet: np.ndarray | None = None
@@ -366,12 +380,25 @@ class SkillCPD:
         """Operator's mean speed over the consecutive packets received in ``direct``, m/s."""
         return self._path_len / self._path_time if self._path_time > 0 else 0.0
 
-    def _skill_point(self) -> np.ndarray:
+    def _on_skill(self) -> np.ndarray:
+        """The registered skill's point at arc length ``_s``."""
         assert self._skill is not None and self._cum is not None
         s = min(self._s, float(self._cum[-1]))
         return np.array(
             [np.interp(s, self._cum, self._skill[:, d]) for d in range(self._skill.shape[1])]
         )
+
+    def _skill_point(self) -> np.ndarray:
+        """The skill's command: its point at arc length ``_s`` plus the fading takeover offset."""
+        point = self._on_skill()
+        if self._offset is None:
+            return point
+        return point + self._offset_weight * self._offset
+
+    def _advance(self) -> None:
+        """One packet along the skill: the arc length at the operator's speed, the offset fades."""
+        self._s += self._speed() * self.config.dt
+        self._offset_weight = max(0.0, self._offset_weight - self.config.takeover_step)
 
     def _register(self, t: float) -> bool:
         """Recognise and register (Algorithm 3); False when the skill may not be used.
@@ -405,6 +432,8 @@ class SkillCPD:
         seg = np.linalg.norm(np.diff(xi_c, axis=0), axis=1)
         self._cum = np.concatenate([[0.0], np.cumsum(seg)])
         self._s = _project_arc_length(robot, xi_c, self._cum, step)
+        self._offset = robot - self._on_skill()
+        self._offset_weight = 1.0 - cfg.takeover_step  # the switch's packet is the first
         self.registrations.append(
             Registration(
                 rec.label, rec.confidence, kind, err, step, t2 - t1, t1 - t0, xi_c, template, X
@@ -468,7 +497,7 @@ class SkillCPD:
                 if self.state == "skill":
                     self._set_state(t, "handback")
                     self.alpha = 0.0
-                self._s += self._speed() * cfg.dt
+                self._advance()
                 self.alpha = min(1.0, self.alpha + cfg.alpha_step)
                 if self.alpha >= 1.0 - 1e-9:
                     self.alpha = 1.0
@@ -491,7 +520,7 @@ class SkillCPD:
         elif self.state in ("skill", "handback"):
             self._set_state(t, "skill")
             self.alpha = 0.0
-            self._s += self._speed() * cfg.dt
+            self._advance()
             self.position = self._skill_point()
         self._record(self.position)
         self._last_t = t
