@@ -130,6 +130,28 @@ def test_the_takeover_offset_fades_linearly_onto_the_registered_skill(library) -
     np.testing.assert_allclose(robot[310:345], ref[310:345], atol=1e-12)
 
 
+def test_a_speed_limited_handback_closes_the_gap_no_faster_than_its_speed(library) -> None:
+    # the hand-back command (1 - alpha) skill + alpha operator moves by the rise of alpha
+    # times the skill-operator gap on top of their own motion: with handback_speed that
+    # part is capped at handback_speed * dt a packet, so alpha rises more slowly than 0.1
+    human = _human()
+    k_back = 300 + 90  # a 3 s outage leaves the skill centimetres off the operator
+    outage = Outage(300 * DT_S - 1e-6, 90 * DT_S)
+    speed = 0.015
+    sa, robot, states, alphas = _replay(library, human, outage, handback_speed=speed)
+    assert sa.registrations and states[k_back] == "handback"
+    k_end = states.index("direct", k_back)
+    assert k_end > k_back + 10  # slower than the thesis' 10-packet ramp
+    for k in range(k_back, k_end):
+        a = alphas[k]
+        skill_point = (robot[k] - a * human[k]) / (1.0 - a)
+        gap = np.linalg.norm(human[k] - skill_point)
+        rise = a - (alphas[k - 1] if k > k_back else 0.0)
+        np.testing.assert_allclose(rise, min(0.1, speed * DT_S / gap), rtol=1e-9)
+        assert rise * gap <= speed * DT_S * (1 + 1e-9)
+    np.testing.assert_allclose(robot[k_end:], human[k_end:])
+
+
 def test_no_shared_autonomy_holds_then_jumps(library: SkillLibrary) -> None:
     human = _human()
     outage = Outage(300 * DT_S - 1e-6, 45 * DT_S)  # packets 300 .. 344 are lost
@@ -295,6 +317,10 @@ _RNG = np.random.default_rng
         (lambda: SkillCPDConfig(window=np.nan), "window must be an integer"),
         (lambda: SkillCPDConfig(min_confidence=2.0), "min_confidence must be in"),
         (lambda: SkillCPDConfig(cpd_tol=np.nan), "cpd_tol must be finite"),
+        (lambda: SkillCPDConfig(takeover_step=0.0), "takeover_step must be > 0"),
+        (lambda: SkillCPDConfig(takeover_step=1.5), "takeover_step .* must be in"),
+        (lambda: SkillCPDConfig(handback_speed=-0.01), "handback_speed must be >= 0"),
+        (lambda: SkillCPDConfig(handback_speed=np.inf), "handback_speed must be finite"),
         (lambda: SkillCPD(SkillLibrary(0.006)), "no skills"),
         (lambda: closest_step(np.full(2, np.nan), np.zeros((20, 2)), 5, 3), "point"),
         (lambda: closest_step(np.zeros(2), np.zeros((20, 2)), 5, -5), "window must be >= 0"),

@@ -80,6 +80,11 @@ class SkillCPDConfig:
         rigid_error: rigid registration accepted below this mean distance, m (0.1 cm).
         window: closest-step search window, ± steps.
         alpha_step: alpha increment per packet during the hand-back (thesis: 0.1).
+        handback_speed: largest speed, m/s, at which the hand-back may close the gap between
+            the skill and the operator (0, the thesis: no limit). The command moves by
+            ``alpha`` times the gap on top of the skill's and the operator's own motion, so
+            alpha then rises by ``min(alpha_step, handback_speed * dt / gap)`` a packet and
+            a gap of several centimetres closes without a jump, more slowly.
         takeover_step: fraction of the takeover offset removed per packet (1.0, the
             thesis: the robot jumps onto the registered skill). At the switch the robot is
             off the registered skill by the registration's residual at its position; the
@@ -98,7 +103,7 @@ class SkillCPDConfig:
     Raises:
         InvalidParameterError: at construction, for an unknown mode; ``dt``, ``deadline``,
             ``delta_d``, ``alpha_step``, ``beta`` or ``lmbda`` not finite and > 0;
-            ``takeover_step`` outside (0, 1];
+            ``takeover_step`` outside (0, 1]; ``handback_speed`` negative or not finite;
             ``min_confidence`` outside [0, 1]; ``rigid_error`` or ``cpd_tol`` negative or
             not finite; ``cpd_w`` outside [0, 1); ``window`` not an integer >= 0;
             ``cpd_max_iter`` not an integer >= 1.
@@ -113,6 +118,7 @@ class SkillCPDConfig:
     window: int = 10
     alpha_step: float = 0.1
     takeover_step: float = 1.0
+    handback_speed: float = 0.0
     cpd_w: float = 0.1
     beta: float = 3.0
     lmbda: float = 3.0
@@ -139,6 +145,7 @@ class SkillCPDConfig:
                 f"got {self.min_confidence!r}"
             )
         check_finite("rigid_error", self.rigid_error, minimum=0.0)
+        check_finite("handback_speed", self.handback_speed, minimum=0.0)
         check_int("window", self.window, minimum=0)
         w = check_finite("cpd_w", self.cpd_w, minimum=0.0)
         if w >= 1.0:
@@ -400,6 +407,15 @@ class SkillCPD:
         self._s += self._speed() * self.config.dt
         self._offset_weight = max(0.0, self._offset_weight - self.config.takeover_step)
 
+    def _alpha_step(self, skill_point: np.ndarray, operator: np.ndarray) -> float:
+        """This packet's rise of alpha in the hand-back: ``alpha_step``, capped so that the
+        command closes the skill-operator gap at no more than ``handback_speed``."""
+        cfg = self.config
+        gap = float(np.linalg.norm(operator - skill_point))
+        if cfg.handback_speed <= 0.0 or gap <= 0.0:
+            return cfg.alpha_step
+        return min(cfg.alpha_step, cfg.handback_speed * cfg.dt / gap)
+
     def _register(self, t: float) -> bool:
         """Recognise and register (Algorithm 3); False when the skill may not be used.
 
@@ -498,13 +514,14 @@ class SkillCPD:
                     self._set_state(t, "handback")
                     self.alpha = 0.0
                 self._advance()
-                self.alpha = min(1.0, self.alpha + cfg.alpha_step)
+                skill_point = self._skill_point()
+                self.alpha = min(1.0, self.alpha + self._alpha_step(skill_point, h))
                 if self.alpha >= 1.0 - 1e-9:
                     self.alpha = 1.0
                     self.position = h.copy()
                     self._set_state(t, "direct")
                 else:
-                    self.position = (1.0 - self.alpha) * self._skill_point() + self.alpha * h
+                    self.position = (1.0 - self.alpha) * skill_point + self.alpha * h
             self.detector.packet(t)
             self._last_packet = h.copy()
             self._last_packet_t = float(t)
