@@ -117,11 +117,12 @@ def test_the_takeover_offset_fades_linearly_onto_the_registered_skill(library) -
     # points 10 packets later
     human = _human(shift=(0.10, 0.0))
     outage = Outage(300 * DT_S - 1e-6, 1.5)
-    jump, _, _, _ = _replay(library, human, outage, takeover_step=1.0)
+    jump, ref, _, _ = _replay(library, human, outage, takeover_step=1.0)
     fade, robot, states, _ = _replay(library, human, outage, takeover_step=0.1)
-    ref = _replay(library, human, outage, takeover_step=1.0)[1]
     assert states[301] == "skill" and all(s == "skill" for s in states[301:345])
-    np.testing.assert_array_equal(fade.registrations[0].trajectory, jump.registrations[0].trajectory)
+    np.testing.assert_array_equal(
+        fade.registrations[0].trajectory, jump.registrations[0].trajectory
+    )
     offset = robot[300] - ref[301]
     assert np.linalg.norm(offset) > 1e-4  # the residual is real, not zero
     for k in range(11):
