@@ -11,15 +11,19 @@ one of four states:
   the state ``direct``, with the robot also held at its last position.
 * ``skill``: deadline missed and the skill recognised with confidence >= ``lambda_minconf``
   (Eq. 5.2): the robot runs the registered skill ``xi_c`` (``alpha = 0``), advancing along
-  it at the operator's mean speed measured before the drop. The confidence is the library's
+  it at the operator's mean speed measured before the drop (with ``takeover_step`` < 1 the
+  robot's offset from the skill at the switch fades over several packets instead of
+  jumping). The confidence is the library's
   calibrated open-set probability (:mod:`~pourbench.teleop.confidence`): an operator doing a
   skill the library does not hold gets a low one, and the robot then holds as in ``"none"``.
   Modes that may switch therefore need a library calibrated for their recognition mode:
   :class:`SkillCPD` refuses an uncalibrated one at construction, and a step that would
   switch on an uncalibrated recognition (the library refitted, which drops its
   calibrations) raises instead of switching.
-* ``handback``: packets are back; ``alpha`` rises by 0.1 per packet (Eq. 5.10) and the
-  command is ``(1 - alpha) xi_c + alpha h_t``; at ``alpha = 1`` the state is ``direct``.
+* ``handback``: packets are back; ``alpha`` rises by 0.1 per packet (Eq. 5.10), or more
+  slowly where ``handback_speed`` caps how fast the command closes the skill-operator gap,
+  and the command is ``(1 - alpha) xi_c + alpha h_t``; at ``alpha = 1`` the state is
+  ``direct``.
 
 Registration (Algorithm 3, mode ``"skill_cpd"``). The rough disconnection index ``i0`` is
 the operator's number of Δd samples (skill steps are one Δd sample of the demonstrations
@@ -80,16 +84,16 @@ class SkillCPDConfig:
         rigid_error: rigid registration accepted below this mean distance, m (0.1 cm).
         window: closest-step search window, ± steps.
         alpha_step: alpha increment per packet during the hand-back (thesis: 0.1).
-        handback_speed: largest speed, m/s, at which the hand-back may close the gap between
-            the skill and the operator (0, the thesis: no limit). The command moves by
-            ``alpha`` times the gap on top of the skill's and the operator's own motion, so
-            alpha then rises by ``min(alpha_step, handback_speed * dt / gap)`` a packet and
-            a gap of several centimetres closes without a jump, more slowly.
         takeover_step: fraction of the takeover offset removed per packet (1.0, the
             thesis: the robot jumps onto the registered skill). At the switch the robot is
             off the registered skill by the registration's residual at its position; the
             command keeps ``1 - j * takeover_step`` of that offset at the ``j``-th packet of
             the skill (the switch's packet is the first) while the skill advances.
+        handback_speed: largest speed, m/s, at which the hand-back may close the gap between
+            the skill and the operator (0, the thesis: no limit). Each packet the command
+            moves by the rise of ``alpha`` times the gap on top of the skill's and the
+            operator's own motion, so alpha then rises by ``min(alpha_step, handback_speed *
+            dt / gap)`` and a gap of several centimetres closes without a jump, more slowly.
         cpd_w: CPD outlier weight.
         beta: non-rigid kernel width (normalised units).
         lmbda: non-rigid regularisation weight.
