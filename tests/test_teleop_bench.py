@@ -28,6 +28,9 @@ def test_quick_bench_prints_one_json_object(tmp_path) -> None:
         for key in ("task", "variation", "method", "max_displacement_cm", "rmse_cm"):
             assert key in r
     assert {r["method"] for r in rows} == {"none", "standard", "skill_cpd"}
+    # every confusion is a wrong letter of a Table 5.1 run, and its count is those runs'
+    wrong = {(r["skill"], r["label"]) for r in rows if r["label"] not in (None, r["skill"])}
+    assert {(c["letter"], c["recognised_as"]) for c in doc["confusions"]} == wrong
     assert (tmp_path / "teleop.md").exists() and (tmp_path / "teleop.json").exists()
     assert (tmp_path / "teleop_confidence.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # no shared autonomy holds still, so its jump at reconnection is the largest
@@ -78,3 +81,34 @@ def test_the_suite_gives_its_cores_back(monkeypatch, request, fails) -> None:
     ((cpus, threads),) = during
     assert len(cpus) == 1 and all(n == 1 for _, n in threads)
     assert after == before, "the suite kept this process on one core"
+
+
+def test_confusions_count_the_wrong_letters_of_table_5_1s_held_out_runs() -> None:
+    from pourbench.bench.teleop import _confusions
+
+    def row(skill, label, switched, method="skill_cpd", cls="identical"):
+        return {
+            "method": method, "operator": "held-out demo", "task": "2d", "class": cls,
+            "skill": skill, "label": label, "switched": switched,
+        }  # fmt: skip
+
+    rows = [
+        row("A", "N", True),
+        row("A", "N", False),
+        row("A", "A", True),
+        row("A", "A", True),
+        row("K", "X", False),
+        row("K", "K", True),
+        row("A", "N", True, method="standard"),  # the same recognition, counted once
+        row("B", "U", True, cls="letter not in library"),  # not a Table 5.1 class
+    ]
+    out, lines = _confusions(rows)
+    assert [(c["letter"], c["recognised_as"], c["runs"], c["of"]) for c in out] == [
+        ("A", "N", 2, 4),
+        ("K", "X", 1, 2),
+    ]
+    assert out[0]["rate"] == 0.5
+    assert (
+        lines[0] == "- A recognised as N: 2 of 4 runs (50 %), 1 of them switched to the wrong skill"
+    )
+    assert _confusions([row("A", "A", True)]) == ([], ["- none"])
