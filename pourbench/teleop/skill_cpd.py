@@ -401,10 +401,8 @@ class SkillCPD:
 
     def _skill_point(self) -> np.ndarray:
         """The skill's command: its point at arc length ``_s`` plus the fading takeover offset."""
-        point = self._on_skill()
-        if self._offset is None:
-            return point
-        return point + self._offset_weight * self._offset
+        assert self._offset is not None  # set with the skill by _register
+        return self._on_skill() + self._offset_weight * self._offset
 
     def _advance(self) -> None:
         """One packet along the skill: the arc length at the operator's speed, the offset fades."""
