@@ -758,8 +758,10 @@ def test_the_shaping_term_is_potential_based() -> None:
     """With ``RewardConfig.shaping`` the reward gains γΦ(s′) − Φ(s) and nothing else: over a
     whole episode that ends at the step limit (a terminal state for the learners) the
     discounted sum of what it adds is −Φ(s0), from the closed-form distance; a step toward
-    the receiving container adds, and so does tilting over it, a step away takes off. The
-    liquid moves as without it."""
+    the receiving container adds, and so does tilting over it, a step away takes off; once
+    the scale reads more than the target every step adds k (γ (1 + c′) − (1 + c)), c the
+    closeness 1 − (reading − target) / target, so a step that pours on takes off. The liquid
+    moves as without it."""
     from pourbench.envs.pour_v0 import PourEnv
     from pourbench.envs.reward import SHAPING_DISTANCE_M, RewardConfig
 
@@ -772,11 +774,12 @@ def test_the_shaping_term_is_potential_based() -> None:
         env.reset(seed=0, options=start)
         batch = env.unwrapped.batch
         phi0 = batch.potential[0]
-        rewards, poured = [], []
+        rewards, poured, reading = [], [], [batch.filter.value_g[0]]
         for t in range(steps):
             _, r, term, trunc, info = env.step(np.array([1.0 if t < 55 else -1.0, 1.0]))
             rewards.append(r)
             poured.append(info["poured_g"])
+            reading.append(batch.filter.value_g[0])
             if term or trunc:
                 break
         runs[scale] = (np.array(rewards), poured, phi0)
@@ -790,6 +793,15 @@ def test_the_shaping_term_is_potential_based() -> None:
     assert np.sum(gamma ** np.arange(len(added)) * added) == pytest.approx(-phi0, abs=1e-9)
     assert added[0] > 0  # approaching
     assert added[25] > 0  # tilting over the receiving container, before liquid reaches it
+    target = start["target_g"]
+    closeness = 1.0 - np.minimum((np.array(reading) - target) / target, 2.0)
+    over = [t for t in range(len(added) - 1) if min(reading[t], reading[t + 1]) > target]
+    assert len(over) > 10  # it over-poured and stayed over to the end
+    for t in over:  # above the receiving container, the scale full: only closeness moves
+        expected = k * (gamma * (1.0 + closeness[t + 1]) - (1.0 + closeness[t]))
+        assert added[t] == pytest.approx(expected, abs=1e-9)
+    rising = [t for t in over if reading[t + 1] > reading[t] + 5.0]
+    assert rising and all(added[t] < 0 for t in rising)  # pouring on past the target costs
     env = PourEnv(liquid="water", reward=RewardConfig(shaping=k, shaping_gamma=gamma))
     env.reset(seed=0, options=start)
     _, r, *_ = env.step(np.array([0.0, -1.0]))  # a step away from the receiving container

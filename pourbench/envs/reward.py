@@ -13,14 +13,17 @@ step limit, so that every gram of the final error counts and not only the two th
 
 A shaping option, off in the thesis' reward: ``shaping`` = k > 0 adds the potential-based
 term F = γ Φ(s′) − Φ(s) of Ng, Harada & Russell (1999, "Policy invariance under reward
-transformations"), with Φ = k (approach + tilted (1 − poured) / 2 + poured): approach = 1 −
+transformations"), with Φ = k (approach + tilted (1 − filled) / 2 + closeness): approach = 1 −
 min(d / 0.3 m, 1), d the pouring container's horizontal distance from where it pours over
 the receiving one; tilted = min(tilt / 90°, 1), the tilt a pour takes before liquid reaches
-the scale, its weight fading as the scale fills; and poured = min(measured / target, 1), the
-scale's reading (Φ grows with the pour at any tilt, and tilting back after it costs
-nothing). Φ = 0 once the episode has ended, at the step limit too (the learners take it as a
-terminal state, :mod:`pourbench.agents.sb3`); only where a diverged liquid truncated it,
-whose value the learner bootstraps from its last state, does that state's potential stand.
+the scale, its weight fading as the scale fills; filled = min(measured / target, 1), the
+scale's reading over the target; and closeness = 1 − min(|measured − target| / target, 2),
+which rises to 1 as the scale reaches the target and falls again with every gram beyond it
+(to −1 at three times the target), so an over-pour costs at the step that makes it and
+tilting back to stop the stream pays there, not only at the episode's end. Φ = 0 once the
+episode has ended, at the step limit too (the learners take it as a terminal state,
+:mod:`pourbench.agents.sb3`); only where a diverged liquid truncated it, whose value the
+learner bootstraps from its last state, does that state's potential stand.
 A potential-based term leaves the optimal policies as they are (for the learner's discount
 γ, ``shaping_gamma``); it gives a learner that starts from noise a gradient toward the
 receiving container, which Algorithm 5 gives only once liquid reaches the scale (a random
@@ -123,8 +126,9 @@ def shaping_potential(
     ``scale``."""
     approach = 1.0 - np.minimum(distance_m / SHAPING_DISTANCE_M, 1.0)
     tilted = np.minimum(tilt_rad / SHAPING_TILT_RAD, 1.0)
-    poured = np.clip(measured_g / target_g, 0.0, 1.0)
-    return scale * (approach + 0.5 * tilted * (1.0 - poured) + poured)
+    filled = np.clip(measured_g / target_g, 0.0, 1.0)
+    closeness = 1.0 - np.minimum(np.abs(measured_g - target_g) / target_g, 2.0)
+    return scale * (approach + 0.5 * tilted * (1.0 - filled) + closeness)
 
 
 class ErrorHistory:
