@@ -147,6 +147,7 @@ def test_bad_values_name_the_parameter() -> None:
         ("[profile.x]\nbase=['y']\n[profile.y]\n", "profile.x.base"),
         ("[profile.x]\nname='Same'\n[profile.y]\nname='same'\n", "profile.y"),
         ("\xff", "<file>"),
+        ("[profile.x]\nviscosity_pa_s=1.0\nyield_stress_pa=5.0\n", "profile.x"),
     ],
 )
 def test_malformed_file_names_file_and_key(tmp_path, body: str, key: str) -> None:
@@ -164,3 +165,16 @@ def test_malformed_file_names_file_and_key(tmp_path, body: str, key: str) -> Non
 def test_a_missing_liquids_file_is_named(tmp_path) -> None:
     with pytest.raises(ProfileFileError, match=r"nope\.toml: key .<file>.: cannot read"):
         load_liquids(tmp_path / "nope.toml")
+
+
+def test_a_herschel_bulkley_profile_loads_from_the_file(tmp_path) -> None:
+    """The law's three numbers load as written, and the profile's rheology is that law."""
+    good = "[defaults]\n" + "\n".join(f"{k} = 1.0" for k in liquid_profile("water").to_flex())
+    path = tmp_path / "paste.toml"
+    path.write_text(
+        good + "\n[profile.paste]\nviscosity_pa_s = 20.0\nyield_stress_pa = 15.0\n"
+        "consistency_pa_sn = 8.0\nflow_index = 0.3\n"
+    )
+    paste = load_liquids(path)["paste"]
+    assert (paste.yield_stress_pa, paste.consistency_pa_sn, paste.flow_index) == (15.0, 8.0, 0.3)
+    assert paste.rheology().stress(1.0) == pytest.approx(23.0)

@@ -25,6 +25,7 @@ from pourbench.bench.fluids_baseline import BaselinePBF
 from pourbench.bench.fluids_viscosity import (
     falling_ball_check,
     settling_check,
+    shear_cell_check,
     timed_pour,
     viscosity_cost,
 )
@@ -335,6 +336,7 @@ def run(args: argparse.Namespace) -> int:
     visc_cost = [] if args.quick else viscosity_cost(checks_device)
     ball, ball_note = ([], "") if args.quick else falling_ball_check(checks_device)
     settling, settling_note = ([], "") if args.quick else settling_check(checks_device)
+    shear, shear_fits, shear_note = ([], [], "") if args.quick else shear_cell_check(checks_device)
     body = "\n".join(
         [
             "Dam-break block in a tank (width a, height 2a, at most 25 cm tall: larger blocks "
@@ -391,6 +393,14 @@ def run(args: argparse.Namespace) -> int:
             settling_note,
             "",
             markdown_table(settling) if settling else "",
+            "",
+            f"## Shear cell: stress against rate ({checks_device})" if shear else "",
+            "",
+            shear_note,
+            "",
+            markdown_table(shear_fits) if shear_fits else "",
+            "",
+            markdown_table(shear) if shear else "",
         ]
     )
     if not args.no_write:
@@ -406,6 +416,8 @@ def run(args: argparse.Namespace) -> int:
                 "viscosity_cost": visc_cost,
                 "falling_ball": ball,
                 "settling": settling,
+                "shear_cell": shear,
+                "shear_cell_fits": shear_fits,
             }
             if checks
             else None,

@@ -21,8 +21,15 @@ from pourbench.fluids.validation import (
     SETTLING_RANGE_PA_S,
     SETTLING_TOLERANCE,
     SETTLING_VISCOSITIES,
+    SHEAR_RATES,
+    SHEAR_VISCOSITIES,
+    SLOPE_TOLERANCE,
+    YIELD_LAW_RATES,
+    YIELD_LIMIT,
     falling_ball,
     newtonian,
+    shear_cell,
+    yield_stress_liquid,
 )
 
 MARBLE_ORDER = (
@@ -172,3 +179,66 @@ def settling_check(device: str = "cpu") -> tuple[list[dict[str, Any]], str]:
         "(docs/viscosity.md)."
     )
     return rows, note
+
+
+def _shear_rows(cell, law: str) -> list[dict[str, Any]]:
+    """One row per speed of a :class:`~pourbench.fluids.validation.ShearCell`."""
+    mid = len(cell.newtonian_speeds) // 2
+    return [
+        {
+            "liquid": law,
+            "rate_per_s": rate,
+            "stress_pa": stress,
+            "closed_form_pa": closed,
+            "stress_over_closed_form": stress / closed,
+            "wall_layer_speed": speeds[0],
+            "mid_gap_speed": speeds[mid],
+            "newtonian_mid_gap_speed": cell.newtonian_speeds[mid],
+        }
+        for rate, stress, closed, speeds in zip(
+            cell.rates, cell.stresses, cell.closed_form, cell.speeds, strict=True
+        )
+    ]
+
+
+def shear_cell_check(device: str = "cpu") -> tuple[list[dict[str, Any]], list[dict[str, Any]], str]:
+    """The concentric-cylinder rheometer (:func:`~pourbench.fluids.validation.shear_cell`)
+    with Newtonian liquids of :data:`~pourbench.fluids.validation.SHEAR_VISCOSITIES` and the
+    Herschel–Bulkley test liquid: per-speed rows, one fit row per Newtonian liquid (stress
+    at zero rate over the stress at the middle rate, slope over the viscosity), and a note."""
+    print("fluids: a Couette rheometer, Newtonian and Herschel–Bulkley…", file=sys.stderr)
+    cfg = SolverConfig(xsph_viscosity=0.0, device=device)
+    rows, fits = [], []
+    for mu in SHEAR_VISCOSITIES:
+        cell = shear_cell(newtonian(mu), SHEAR_RATES, config=cfg)
+        rows += _shear_rows(cell, f"{mu:g} Pa·s")
+        intercept, slope = cell.fit()
+        middle = float(np.median(cell.stresses))
+        fits.append(
+            {
+                "viscosity_pa_s": mu,
+                "stress_at_zero_rate_pa": intercept,
+                "over_middle_stress": intercept / middle,
+                "slope_pa_s": slope,
+                "slope_over_viscosity": slope / mu,
+                "no_yield": "yes"
+                if abs(intercept) <= YIELD_LIMIT * middle
+                and abs(slope / mu - 1.0) <= SLOPE_TOLERANCE
+                else "no",
+            }
+        )
+    liquid = yield_stress_liquid()
+    rows += _shear_rows(shear_cell(liquid, YIELD_LAW_RATES, config=cfg), liquid.name)
+    note = (
+        "A cylinder of 2 cm radius turning inside a fixed cup of 4 cm, the annulus 6 cm deep "
+        "(`validation.shear_cell`, 1000 kg/m³, FleX terms and XSPH off): the torque on the "
+        "cylinder over 2π R₁² L against the closed form of the liquid's law in a long cell "
+        "(`rheology.couette_inner_stress`), averaged over 0.5 s of steady flow. `rate_per_s` "
+        "is a Newtonian liquid's rate at the cylinder. Speeds are azimuthal, over the wall's "
+        "(Ω R₁), in the bin beside the cylinder and at mid-gap, mid-depth. A Newtonian "
+        f"liquid shows no yield when the line through its stresses meets zero rate below "
+        f"{YIELD_LIMIT:.0%} of its middle stress and its slope is its viscosity within "
+        f"{SLOPE_TOLERANCE:.0%}. The Herschel–Bulkley liquid (`validation.yield_stress_liquid`) "
+        "is a ketchup-like test law, not a shipped profile (docs/viscosity.md)."
+    )
+    return rows, fits, note

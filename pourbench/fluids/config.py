@@ -67,6 +67,17 @@ class SolverConfig:
             0 (the default) solves every liquid with a physical viscosity; Pour-v0 sets 1e-3,
             which leaves water, ink and milk (3–7e-5 at its resolution) to XSPH and solves
             oil (2e-3) and the thicker liquids (docs/performance.md).
+        plug_viscosity_pa_s: the most viscous a liquid with a Herschel–Bulkley law gets, Pa·s:
+            where its shear rate is too low to yield, the law's τ / γ̇ is capped at this, so
+            an unyielded region is a very viscous liquid that creeps at τ / this
+            (:mod:`pourbench.fluids.rheology`).
+        viscous_displacement: the implicit viscosity solve also moves each particle by dt
+            times the velocity it changed, so that a step's displacement is the solved
+            velocity's (the position update otherwise precedes the solve, and a liquid held
+            by its viscosity still moves by g dt² a step).
+        shear_passes: solves a step takes for a liquid with a Herschel–Bulkley law, each
+            taking the particles' viscosities from the velocities the last returned (Picard
+            passes; the first takes them from the velocities to be solved).
         laplacian_packing: the settled liquid's pair sum of the viscous Laplacian's kernel
             second moment (Σ_j V g_ij r_ij², :mod:`pourbench.fluids.viscosity`) as a fraction of
             the continuum's; the pair terms are divided by it (measured on settled water,
@@ -117,6 +128,9 @@ class SolverConfig:
     viscosity_tolerance: float = 1.0e-3
     viscosity_max_iterations: int = 100
     min_viscous_diffusion: float = 0.0
+    plug_viscosity_pa_s: float = 1000.0
+    shear_passes: int = 2
+    viscous_displacement: bool = False
     laplacian_packing: float = 0.897
     viscosity_rate: float = 1.0
     xsph_viscosity: float = 0.01
@@ -132,7 +146,7 @@ class SolverConfig:
     def __post_init__(self) -> None:
         for name in (
             *("spacing", "dt", "smoothing", "max_speed", "calibration_dt", "rest_packing"),
-            *("laplacian_packing", "sor", "viscosity_tolerance"),
+            *("laplacian_packing", "sor", "viscosity_tolerance", "plug_viscosity_pa_s"),
         ):
             check_finite(name, getattr(self, name), minimum=1e-9)
         if self.smoothing <= 1.0:
@@ -149,6 +163,7 @@ class SolverConfig:
         ):
             check_finite(name, getattr(self, name), minimum=0.0)
         check_int("viscosity_max_iterations", self.viscosity_max_iterations, minimum=1)
+        check_int("shear_passes", self.shear_passes, minimum=1)
         for name, minimum in (("iterations", 1), ("max_neighbours", 1), ("reorder_every", 0)):
             check_int(name, getattr(self, name), minimum=minimum)
         check_int("max_iterations", self.max_iterations, minimum=self.iterations)
@@ -156,8 +171,11 @@ class SolverConfig:
             raise InvalidParameterError(
                 f"pair_lists must be 'auto', 'half' or 'full', got {self.pair_lists!r}"
             )
-        if not isinstance(self.graph, bool):
-            raise InvalidParameterError(f"graph must be True or False, got {self.graph!r}")
+        for name in ("graph", "viscous_displacement"):
+            if not isinstance(getattr(self, name), bool):
+                raise InvalidParameterError(
+                    f"{name} must be True or False, got {getattr(self, name)!r}"
+                )
         try:
             gravity = tuple(self.gravity)
         except TypeError:

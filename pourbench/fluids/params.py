@@ -15,6 +15,7 @@ from importlib import resources
 from pathlib import Path
 
 from pourbench.errors import InvalidParameterError, ProfileFileError, UnknownNameError, read_toml
+from pourbench.fluids.rheology import HerschelBulkley
 
 # FleX parameter name -> LiquidProfile attribute.
 FLEX_NAMES: dict[str, str] = {
@@ -33,7 +34,8 @@ FLEX_NAMES: dict[str, str] = {
     "buoyancy": "buoyancy",
     "density": "density",
 }
-_OPTIONAL = {"viscosity_cp", "viscosity_pa_s", "marble_speed", "marble_viscosity_cp"}
+_RHEOLOGY = {"yield_stress_pa", "consistency_pa_sn", "flow_index"}
+_OPTIONAL = {"viscosity_cp", "viscosity_pa_s", "marble_speed", "marble_viscosity_cp"} | _RHEOLOGY
 _TEXT = {"name", "source", "viscosity_source"}
 _META = {"base", "aliases"} | _TEXT
 
@@ -58,6 +60,12 @@ class LiquidProfile:
         viscosity_cp: the same dynamic viscosity in centipoise, an alternative input: given
             alone it sets ``viscosity_pa_s`` (cP / 1000); given with it, the two must agree.
         viscosity_source: where ``viscosity_pa_s`` comes from (a publication or a derivation).
+        yield_stress_pa, consistency_pa_sn, flow_index: a Herschel–Bulkley law τ = τ_y + K γ̇ⁿ
+            (Pa, Pa·sⁿ, dimensionless; :mod:`pourbench.fluids.rheology`) that the implicit
+            solve applies instead of the constant ``viscosity_pa_s``. ``consistency_pa_sn``
+            turns it on; the yield stress defaults to 0 and the index to 1. ``viscosity_pa_s``
+            stays the liquid's apparent viscosity at a pour's shear rate: what the pouring
+            tasks observe and the scale the solve is set up with.
         marble_speed: falling-ball speed (m/s) in Table 3.4, if measured.
         marble_viscosity_cp: Table 3.4's viscosity (cP) as the thesis computed it from that
             speed by Stokes' law without a wall or inertia correction (provenance only;
@@ -84,6 +92,9 @@ class LiquidProfile:
     viscosity_cp: float | None = None
     marble_speed: float | None = None
     marble_viscosity_cp: float | None = None
+    yield_stress_pa: float | None = None
+    consistency_pa_sn: float | None = None
+    flow_index: float | None = None
     source: str = ""
     viscosity_source: str = ""
 
@@ -113,6 +124,32 @@ class LiquidProfile:
             )
         if cp is not None and pa_s is None:
             object.__setattr__(self, "viscosity_pa_s", cp * 1e-3)
+        given = sorted(k for k in _RHEOLOGY if getattr(self, k) is not None)
+        if given and self.consistency_pa_sn is None:
+            raise InvalidParameterError(
+                f"liquid {self.name!r}: {given} need consistency_pa_sn (a Herschel–Bulkley "
+                "law is τ = yield_stress_pa + consistency_pa_sn × rate ** flow_index)"
+            )
+        if given and self.viscosity_pa_s is None:
+            raise InvalidParameterError(
+                f"liquid {self.name!r}: a Herschel–Bulkley law needs viscosity_pa_s too, the "
+                "apparent viscosity at a pour's shear rate"
+            )
+        if given:
+            self.rheology()  # the law's own checks
+
+    def rheology(self) -> HerschelBulkley | None:
+        """The liquid's shear law: its Herschel–Bulkley law, a Newtonian one of
+        ``viscosity_pa_s`` (τ_y 0, n 1), or None without a physical viscosity."""
+        if self.consistency_pa_sn is not None:
+            return HerschelBulkley(
+                self.yield_stress_pa or 0.0,
+                self.consistency_pa_sn,
+                1.0 if self.flow_index is None else self.flow_index,
+            )
+        if self.viscosity_pa_s:
+            return HerschelBulkley(0.0, self.viscosity_pa_s, 1.0)
+        return None
 
     def replace(self, **changes: float) -> LiquidProfile:
         """Copy with some attributes (snake_case or FleX names) changed; values are validated."""

@@ -422,11 +422,33 @@ class PBFSolver:
         c_w[self.viscous_diffusion() == 0.0] = 0.0  # ν dt per world; 0: no solve
         if c_w.any():
             sizes = np.bincount(self._world, minlength=self.num_worlds)
-            self.viscosity = V.ImplicitViscosity(self, c_w, sizes)
+            self.viscosity = V.ImplicitViscosity(self, c_w, sizes, self._shear_laws(c_w))
         self.launches.viscosity = self.viscosity
         self._upload_poses(prev_too=True)
         self._moved = False
         self._dirty = False
+
+    def _shear_laws(self, c_w: np.ndarray) -> np.ndarray:
+        """(worlds, 4): τ_y, K, n and the reference viscosity (``viscosity_pa_s``) of each
+        solved world whose liquid has a Herschel–Bulkley law; zeros for the others."""
+        laws = np.zeros((self.num_worlds, 4))
+        for w, liq in enumerate(self.liquids):
+            law = liq.rheology()
+            if c_w[w] > 0 and liq.consistency_pa_sn is not None and law is not None:
+                laws[w] = (
+                    *(law.yield_stress_pa, law.consistency_pa_sn, law.flow_index),
+                    liq.viscosity_pa_s,
+                )
+        return laws
+
+    def shear_rates(self) -> np.ndarray:
+        """Each particle's shear rate (1/s) as the last viscous solve of a world with a
+        Herschel–Bulkley law took it (:func:`pourbench.fluids.viscosity.shear_viscosity`);
+        zero elsewhere."""
+        visc = self.viscosity
+        if self._dirty or visc is None or not visc.has_law:
+            return np.zeros(len(self._x))
+        return visc.rate.numpy().astype(float)
 
     def _upload_poses(self, prev_too: bool = False) -> None:
         """Copy the pose table to the device as the end-of-step poses (the start-of-step
@@ -547,10 +569,13 @@ class PBFSolver:
         st.run("end", st.end, graphs)
         visc = self.viscosity
         if visc is not None:
-            for _ in range(cfg.viscosity_max_iterations):
-                if not visc.any_active.numpy()[0]:
-                    break
-                st.run("viscosity", visc.iteration, graphs)
+            for shear_pass in range(visc.passes):
+                if shear_pass:
+                    st.run("viscosity_refine", visc.refine, graphs)
+                for _ in range(cfg.viscosity_max_iterations):
+                    if not visc.any_active.numpy()[0]:
+                        break
+                    st.run("viscosity", visc.iteration, graphs)
             st.run("viscosity_end", visc.finish, graphs)
         self._moved = True
         self._advance_clock()

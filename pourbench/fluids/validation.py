@@ -20,8 +20,15 @@ from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.falling_ball import terminal_speed
 from pourbench.fluids.params import LiquidProfile, liquid_profile
+from pourbench.fluids.rheology import (
+    couette_inner_stress,
+    newtonian_rate,
+    omega_for_rate,
+    yield_tilt,
+)
 from pourbench.fluids.scenarios import GRAVITY, tilt_schedule, two_cup_scene
 from pourbench.fluids.solver import PBFSolver
+from pourbench.geometry.fill import container_lattice
 from pourbench.geometry.shapes import BoxShell, cup
 
 # Martin & Moyce (1952), n² = 2 (column height 2a, width a): surge-front position Z = x/a at
@@ -551,3 +558,241 @@ def falling_ball(
         name = liquid if isinstance(liquid, str) else liquid.name
         out.append(FallingBall(name, t, fall[:, w], speeds, closed, re))
     return out
+
+
+SHEAR_VISCOSITIES = (0.1, 1.0, 10.0)
+"""Pa·s: the Newtonian liquids the shear cell checks for a yield stress."""
+
+SHEAR_RATES = (1.0, 3.0, 10.0)
+"""1/s: the shear rates (Newtonian, at the inner cylinder) of those checks."""
+
+YIELD_LIMIT = 0.15
+"""The largest stress at zero rate a Newtonian liquid may show in the shear cell, as a
+fraction of its stress at the middle rate (the line through its stresses)."""
+
+SLOPE_TOLERANCE = 0.25
+"""How near the liquid's viscosity that line's slope must be, as a fraction of it."""
+
+YIELD_LAW_RATES = (1.0, 3.0, 10.0, 30.0)
+"""1/s: the rates at which the shear cell checks a Herschel–Bulkley liquid."""
+
+
+def yield_stress_liquid() -> LiquidProfile:
+    """A Herschel–Bulkley test liquid of 1000 kg/m³ shaped like a ketchup: τ_y = 20 Pa,
+    K = 10 Pa·sⁿ, n = 0.25 (ketchups' Herschel–Bulkley fits have n of 0.22–0.26 and K of
+    7–20 Pa·sⁿ, Koocheki et al. 2009, Int. J. Food Sci. Technol. 44:596), its reference
+    viscosity 10 Pa·s, every FleX velocity term off (:func:`newtonian`)."""
+    return newtonian(10.0).replace(
+        name="Herschel–Bulkley 20 Pa, 10 Pa·s^0.25",
+        yield_stress_pa=20.0,
+        consistency_pa_sn=10.0,
+        flow_index=0.25,
+    )
+
+
+@dataclass(frozen=True)
+class ShearCell:
+    """A concentric-cylinder rheometer run (:func:`shear_cell`): one liquid, several speeds."""
+
+    liquid: str
+    inner: float  # m, the turning cylinder's radius
+    outer: float  # m, the fixed cup's inner radius
+    omegas: np.ndarray  # rad/s, the inner cylinder's speeds
+    rates: np.ndarray  # 1/s, a Newtonian liquid's shear rate at the inner cylinder
+    stresses: np.ndarray  # Pa, measured: the torque on the inner cylinder / (2π R₁² L)
+    closed_form: np.ndarray  # Pa, the liquid's law's stress there (rheology.couette_inner_stress)
+    wetted: np.ndarray  # m, the liquid's depth L at the end, per speed
+    radii: np.ndarray  # m, centres of the gap's bins
+    speeds: np.ndarray  # (speeds, bins) mean azimuthal speed over the window / (Ω R₁)
+    newtonian_speeds: np.ndarray  # (bins,) the Newtonian profile / (Ω R₁)
+
+    def fit(self) -> tuple[float, float]:
+        """Least-squares line through (rate, stress): (stress at zero rate, Pa; slope, Pa·s)."""
+        slope, intercept = np.polyfit(self.rates, self.stresses, 1)
+        return float(intercept), float(slope)
+
+
+def shear_cell(
+    liquid: str | LiquidProfile,
+    rates: Sequence[float],
+    inner: float = 0.02,
+    outer: float = 0.04,
+    depth: float = 0.06,
+    settle: float = 1.0,
+    spin: float | None = None,
+    window: float = 0.5,
+    config: SolverConfig | None = None,
+) -> ShearCell:
+    """A Couette rheometer: a cylinder of radius ``inner`` (m) standing on the floor of a cup of
+    inner radius ``outer``, the annulus filled ``depth`` (m) deep with ``liquid`` and settled
+    for ``settle`` s, then the cylinder turned at the speed Ω that gives each of ``rates``
+    (1/s) at its wall in a Newtonian liquid (one world per rate), for ``spin`` s to reach a
+    steady flow (by default 1.5 s, or ten times the gap's viscous time (R₂ − R₁)² / (π² ν)
+    of the liquid's reference viscosity where that is longer) and ``window`` s over which
+    the liquid's torque on it and the azimuthal speeds across the gap (mid-depth, a third
+    of the depth clear of the floor and the surface) are averaged.
+
+    The cylinder's surface has no friction of its own: the torque reaches it through the
+    viscous solve's no-slip wall alone, so a liquid without a physical viscosity feels none.
+    ``closed_form`` is the liquid's law in a long cell (:mod:`pourbench.fluids.rheology`); the
+    floor adds a little torque that the closed form leaves out.
+    """
+    cfg = config or SolverConfig(xsph_viscosity=0.0)
+    profile = liquid_profile(liquid)
+    law = profile.rheology()
+    if law is None:
+        raise InvalidParameterError(
+            f"liquid {profile.name!r} has no physical viscosity: a shear cell measures one"
+        )
+    omegas = np.array([omega_for_rate(rate, inner, outer) for rate in rates], float)
+    if len(omegas) == 0 or np.any(omegas <= 0):
+        raise InvalidParameterError(f"rates must be > 0, got {list(rates)!r}")
+    if spin is None:
+        nu = (profile.viscosity_pa_s or 0.0) / profile.density
+        spin = max(1.5, 10.0 * (outer - inner) ** 2 / (math.pi**2 * nu))
+    n = len(omegas)
+    s = PBFSolver(n, cfg)
+    shape = cup(outer, depth + 0.04, wall=0.006)
+    half = 0.5 * (depth + 0.03)
+    centre = np.array([0.0, 0.0, shape.bottom_z + half - 0.005])  # 5 mm into the floor
+    points = container_lattice(shape, cfg.spacing)
+    annulus = points[
+        (np.hypot(points[:, 0], points[:, 1]) > inner + 0.4 * cfg.spacing)
+        & (points[:, 2] < shape.bottom_z + depth)
+    ]
+    cylinders, bodies = [], []
+    for w in range(n):
+        s.add_container(w, shape)
+        s.set_liquid(w, profile)
+        bodies.append(s.new_body_slot())
+        pose = [*centre, 1.0, 0.0, 0.0, 0.0]
+        cylinders.append(s.add_collider(w, "cylinder", [inner, half], pose=pose, body=bodies[-1]))
+        s.add_particles(w, annulus)
+    coms = np.tile(centre, (n, 1))
+    poses = np.tile([*centre, 1.0, 0.0, 0.0, 0.0], (n, 1))
+    s.set_collider_poses(cylinders, poses, coms)
+    s.step(round(settle / cfg.dt))
+    edges = np.linspace(inner, outer, round(2 * (outer - inner) / cfg.spacing) + 1)
+    radii = 0.5 * (edges[:-1] + edges[1:])
+    torque = np.zeros(n)
+    speed_sum = np.zeros((n, len(radii)))
+    speed_count = np.zeros((n, len(radii)))
+    spin_steps, window_steps = round(spin / cfg.dt), round(window / cfg.dt)
+    for k in range(spin_steps + window_steps):
+        angle = omegas * (k + 1) * cfg.dt
+        poses[:, 3], poses[:, 6] = np.cos(angle / 2), np.sin(angle / 2)
+        s.set_collider_poses(cylinders, poses, coms)
+        s.step()
+        if k < spin_steps:
+            continue
+        torque += s.body_wrenches()[1][bodies, 2]
+        if (k - spin_steps) % 4:
+            continue
+        x, v = s.positions(), s.velocities()
+        for w in range(n):
+            xs, vs = x[s.world_slice(w)], v[s.world_slice(w)]
+            r = np.hypot(xs[:, 0], xs[:, 1])
+            height = xs[:, 2] - shape.bottom_z
+            mid = (height > depth / 3) & (height < 2 * depth / 3)
+            azimuthal = (xs[:, 0] * vs[:, 1] - xs[:, 1] * vs[:, 0]) / np.maximum(r, 1e-9)
+            b = np.clip(np.searchsorted(edges, r[mid]) - 1, 0, len(radii) - 1)
+            speed_sum[w] += np.bincount(b, azimuthal[mid], len(radii))
+            speed_count[w] += np.bincount(b, minlength=len(radii))
+    x = s.positions()
+    wetted = (
+        np.array([np.percentile(x[s.world_slice(w), 2], 99) for w in range(n)])
+        - shape.bottom_z
+        + 0.5 * cfg.spacing
+    )
+    stresses = -torque / window_steps / (2 * math.pi * inner**2 * wetted)
+    speeds = speed_sum / np.maximum(speed_count, 1) / (omegas[:, None] * inner)
+    a = inner**2 / (outer**2 - inner**2)
+    newtonian = a * (outer**2 / radii - radii) / inner
+    return ShearCell(
+        profile.name,
+        inner,
+        outer,
+        omegas,
+        np.array([newtonian_rate(o, inner, outer) for o in omegas]),
+        stresses,
+        np.array([couette_inner_stress(law, o, inner, outer) for o in omegas]),
+        wetted,
+        radii,
+        speeds,
+        newtonian,
+    )
+
+
+@dataclass(frozen=True)
+class TiltedLayer:
+    """A layer of liquid on a tray tilted and held (:func:`tilted_layer`)."""
+
+    liquid: str
+    tilts_deg: np.ndarray  # the trays' tilts
+    times: np.ndarray  # s since the tilt was reached
+    shifts: np.ndarray  # (tilts, times) m, the layer's centre of mass downhill since then
+    depth: float  # m, the layer's depth when flat
+    yield_tilt_deg: float  # the law's (rheology.yield_tilt), 90 without a yield stress
+
+
+def tilted_layer(
+    liquid: str | LiquidProfile,
+    tilts_deg: Sequence[float],
+    depth: float = 0.02,
+    half_length: float = 0.06,
+    half_width: float = 0.02,
+    settle: float = 0.5,
+    turn: float = 0.2,
+    hold: float = 1.0,
+    samples: int = 4,
+    config: SolverConfig | None = None,
+) -> TiltedLayer:
+    """A layer ``depth`` (m) deep covering the floor of a tray (inner half-extents
+    ``half_length`` × ``half_width``, m), one tray a world: settled flat for ``settle`` s,
+    tilted about its short axis at a steady rate to each of ``tilts_deg`` over ``turn`` s,
+    then held for ``hold`` s, over which the layer's centre of mass moves downhill by
+    ``shifts`` (in the tray's frame, at ``samples`` times evenly spaced over the hold). A
+    yield stress τ_y holds the layer while the stress at its floor, ρ g h sin θ, is below it
+    (``yield_tilt_deg``); a liquid without one flows toward the lower wall at any tilt."""
+    cfg = config or SolverConfig(xsph_viscosity=0.0)
+    profile = liquid_profile(liquid)
+    tilts = np.radians(np.asarray(tilts_deg, float))
+    if len(tilts) == 0 or np.any(tilts < 0) or np.any(tilts >= math.pi / 2):
+        raise InvalidParameterError(f"tilts_deg must be in [0, 90), got {list(tilts_deg)!r}")
+    tray = BoxShell(half_length, half_width, depth + 0.03, 0.01)
+    s = PBFSolver(len(tilts), cfg)
+    trays = []
+    for w in range(len(tilts)):
+        trays.append(s.add_container(w, tray))
+        s.fill(w, trays[-1], profile.density * 4 * half_length * half_width * depth * 1e3, profile)
+    s.step(round(settle / cfg.dt))
+
+    def poses(angle: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(angle), 7))
+        out[:, 3], out[:, 5] = np.cos(angle / 2), np.sin(angle / 2)  # about +y: +x goes down
+        return out
+
+    def downhill() -> np.ndarray:  # mean x of each world's liquid in its tray's frame
+        x = s.positions()
+        out = np.empty(len(tilts))
+        for w, angle in enumerate(tilts):
+            p = x[s.world_slice(w)]
+            out[w] = np.mean(p[:, 0] * math.cos(angle) - p[:, 2] * math.sin(angle))
+        return out
+
+    turn_steps = max(1, round(turn / cfg.dt))
+    for k in range(turn_steps):
+        s.set_collider_poses(trays, poses(tilts * (k + 1) / turn_steps))
+        s.step()
+    start = downhill()
+    every = max(1, round(hold / cfg.dt / samples))
+    shifts = []
+    for _ in range(samples):
+        s.step(every)
+        shifts.append(downhill() - start)
+    law = profile.rheology()
+    yield_deg = 90.0
+    if law is not None and law.yield_stress_pa > 0:
+        yield_deg = math.degrees(yield_tilt(law, profile.density, depth, GRAVITY))
+    times = every * cfg.dt * np.arange(1, samples + 1)
+    return TiltedLayer(profile.name, np.degrees(tilts), times, np.array(shifts).T, depth, yield_deg)

@@ -18,6 +18,17 @@ symmetric and positive, so the system is symmetric positive definite, and the pa
 antisymmetric: the liquid's momentum and angular momentum are kept, and a rigid motion is not
 damped.
 
+A liquid with a Herschel–Bulkley law (``LiquidProfile.consistency_pa_sn``,
+:mod:`pourbench.fluids.rheology`) takes the same solve with a viscosity per particle: before
+it, each particle's shear rate comes from the velocities (the SPH velocity gradient with the
+kernel-gradient correction, :func:`shear_viscosity`) and its viscosity from the law, capped
+at ``SolverConfig.plug_viscosity_pa_s``; a pair's block is scaled by the mean of its two
+particles' viscosities over the world's reference (``viscosity_pa_s``), so the system stays
+symmetric, and a particle's wall term by its own. The viscosities lag the solve by one pass,
+a Picard iteration: ``SolverConfig.shear_passes`` solves a step, each taking the
+viscosities from the velocities the last one returned (the first from the velocities to be
+solved, which carry the density solve's jitter).
+
 A wall is no-slip. Its solid, counted as the density constraint's wall term counts it (a
 half-space beyond the particle's nearest wall, or beside a sphere or capsule the sphere of the
 wall's curvature, :func:`wall_tensor`), carries the velocity that extends the particle's
@@ -154,10 +165,11 @@ def pair_weight(r: wp.vec3, h: float, coef: float) -> wp.vec3:
 class ViscosityKernels(NamedTuple):
     setup: wp.Kernel
     matvec: wp.Kernel
+    velocity_gradient: wp.Kernel
 
 
 def viscosity_kernels(half: bool) -> ViscosityKernels:
-    """The two pair passes for half lists (``half``) or full lists (see
+    """The three pair passes for half lists (``half``) or full lists (see
     :mod:`pourbench.fluids.kernels` for the layouts)."""
 
     @wp.kernel
@@ -169,16 +181,21 @@ def viscosity_kernels(half: bool) -> ViscosityKernels:
         stride: int,
         world: wp.array(dtype=wp.int32),
         c_w: wp.array(dtype=float),
+        shear_law: wp.array(dtype=wp.vec4),
+        scale: wp.array(dtype=float),
         h: float,
         coef: float,
         u: wp.array(dtype=wp.vec3),
         diag: wp.array(dtype=wp.mat33),
     ):
-        """Each listed pair's u (:func:`pair_weight`) and every particle's Σ_j u uᵀ
-        (``diag``, zero on entry)."""
+        """Each listed pair's u (:func:`pair_weight`, times √((s_i + s_j) / 2) in a world
+        with a shear law, s the particles' viscosities over the world's reference) and every
+        particle's Σ_j u uᵀ (``diag``, zero on entry)."""
         i = wp.tid()
-        if c_w[world[i]] == 0.0:
+        w = world[i]
+        if c_w[w] == 0.0:
             return
+        scaled = shear_law[w][3] > 0.0
         xi = x[i]
         acc = wp.mat33(0.0)
         k = nbr_start[i]
@@ -186,6 +203,8 @@ def viscosity_kernels(half: bool) -> ViscosityKernels:
         while k < k_end:
             j = nbr[k]
             uk = pair_weight(xi - x[j], h, coef)
+            if scaled:
+                uk = uk * wp.sqrt(0.5 * (scale[i] + scale[j]))
             u[k] = uk
             m = wp.outer(uk, uk)
             acc += m
@@ -230,11 +249,103 @@ def viscosity_kernels(half: bool) -> ViscosityKernels:
         else:
             out[i] = acc
 
-    return ViscosityKernels(setup, matvec)
+    @wp.kernel
+    def velocity_gradient(
+        x: wp.array(dtype=wp.vec3),
+        v: wp.array(dtype=wp.vec3),
+        nbr: wp.array(dtype=wp.int32),
+        nbr_start: wp.array(dtype=wp.int32),
+        nbr_count: wp.array(dtype=wp.int32),
+        stride: int,
+        world: wp.array(dtype=wp.int32),
+        shear_law: wp.array(dtype=wp.vec4),
+        h: float,
+        coef: float,
+        grad: wp.array(dtype=wp.mat33),
+        moment: wp.array(dtype=wp.mat33),
+    ):
+        """In a world with a shear law, every particle's Σ_j V (v_j − v_i) ⊗ ∇W_ij
+        (``grad``) and Σ_j V (x_j − x_i) ⊗ ∇W_ij (``moment``, the identity in a full
+        neighbourhood), both zero on entry with half lists. A pair adds the same tensors to
+        both of its particles (both factors change sign)."""
+        i = wp.tid()
+        if shear_law[world[i]][3] == 0.0:
+            return
+        xi = x[i]
+        vi = v[i]
+        g = wp.mat33(0.0)
+        m = wp.mat33(0.0)
+        k = nbr_start[i]
+        k_end = k + nbr_count[i] * stride
+        while k < k_end:
+            j = nbr[k]
+            r = xi - x[j]
+            d = wp.length(r)
+            if d < h and d > 1.0e-9:
+                q = h - d
+                gw = r * (-coef * q * q / d)  # V ∇_i W_ij, spiky kernel
+                gp = wp.outer(v[j] - vi, gw)
+                mp = wp.outer(-r, gw)
+                g += gp
+                m += mp
+                if wp.static(half):
+                    wp.atomic_add(grad, j, gp)
+                    wp.atomic_add(moment, j, mp)
+            k += stride
+        if wp.static(half):
+            wp.atomic_add(grad, i, g)
+            wp.atomic_add(moment, i, m)
+        else:
+            grad[i] = g
+            moment[i] = m
+
+    return ViscosityKernels(setup, matvec, velocity_gradient)
 
 
 HALF_LISTS = viscosity_kernels(True)
 FULL_LISTS = viscosity_kernels(False)
+
+
+@wp.kernel
+def shear_viscosity(
+    world: wp.array(dtype=wp.int32),
+    shear_law: wp.array(dtype=wp.vec4),
+    plug_viscosity: float,
+    grad: wp.array(dtype=wp.mat33),
+    moment: wp.array(dtype=wp.mat33),
+    rate: wp.array(dtype=float),
+    scale: wp.array(dtype=float),
+):
+    """In a world with a shear law (τ_y, K, n, η_ref): the particle's shear rate
+    γ̇ = √(2 D:D) of the deviatoric part of D = sym(∇v), with ∇v = grad · moment⁻¹ (the
+    kernel-gradient correction, which keeps a particle at a wall or the surface first-order
+    accurate; a particle whose neighbours lie too much to one side for it, moment's
+    determinant under 0.05 of its mean diagonal cubed, takes grad over that mean), its
+    viscosity η = min((τ_y + K γ̇ⁿ) / γ̇, ``plug_viscosity``) and ``scale`` =
+    η / η_ref. Clears ``grad`` and ``moment``."""
+    i = wp.tid()
+    law = shear_law[world[i]]
+    if law[3] == 0.0:
+        return
+    g = grad[i]
+    m = moment[i]
+    grad[i] = wp.mat33(0.0)
+    moment[i] = wp.mat33(0.0)
+    size = wp.trace(m) / 3.0
+    if size < 1.0e-6:  # no neighbours: no gradient
+        g = wp.mat33(0.0)
+    elif wp.determinant(m) > 0.05 * size * size * size:
+        g = g * wp.inverse(m)
+    else:  # too one-sided to invert
+        g = g / size
+    d = 0.5 * (g + wp.transpose(g))
+    d = d - wp.identity(n=3, dtype=float) * (wp.trace(d) / 3.0)
+    gamma = wp.sqrt(2.0 * wp.ddot(d, d))
+    rate[i] = gamma
+    eta = plug_viscosity
+    if gamma > 0.0:
+        eta = wp.min((law[0] + law[1] * wp.pow(gamma, law[2])) / gamma, plug_viscosity)
+    scale[i] = eta / law[3]
 
 
 @wp.kernel
@@ -246,6 +357,8 @@ def start(
     wall: wp.array(dtype=K.vec5),
     wall_collider: wp.array(dtype=wp.int32),
     cols: K.Colliders,
+    shear_law: wp.array(dtype=wp.vec4),
+    scale: wp.array(dtype=float),
     h: float,
     d_min: float,
     dt: float,
@@ -256,9 +369,10 @@ def start(
     sol: wp.array(dtype=wp.vec3),
     inv_m: wp.array(dtype=wp.mat33),
 ):
-    """Per particle of a viscous world: the wall tensor and the wall's velocity there, the
-    right-hand side v + c T v_wall, the start x = v, and the preconditioner's block
-    (I + c (Σ u uᵀ + T))⁻¹, c = dt ν; clears ``diag``."""
+    """Per particle of a viscous world: the wall tensor (times the particle's s in a world
+    with a shear law) and the wall's velocity there, the right-hand side v + c T v_wall, the
+    start x = v, and the preconditioner's block (I + c (Σ u uᵀ + T))⁻¹, c = dt ν; clears
+    ``diag``."""
     i = wp.tid()
     w = world[i]
     c = c_w[w]
@@ -273,6 +387,8 @@ def start(
     wc = wall_collider[i]
     if wc >= 0:
         t = wall_tensor(K.wall_distance(wl, xi), wl[4], h, d_min)
+        if shear_law[w][3] > 0.0:  # the particle's own viscosity at its wall
+            t = t * scale[i]
         # the wall's velocity at the particle: the point of the collider there now, where
         # it was at the step's start
         local = wp.transform_point(wp.transform_inverse(cols.pose[wc]), xi)
@@ -564,22 +680,29 @@ def finish(
     v_wall: wp.array(dtype=wp.vec3),
     sol: wp.array(dtype=wp.vec3),
     cols: K.Colliders,
+    move: int,
     v: wp.array(dtype=wp.vec3),
+    x_end: wp.array(dtype=wp.vec3),
 ):
-    """v = the solution; the wall's viscous force on the particle, m c T (v_wall − v) / dt,
-    goes to the collider's body as its reaction."""
+    """v = the solution; with ``move``, the particle also moves by dt times the velocity
+    the solve took off or added, so that its step's displacement is the solved velocity's;
+    the wall's viscous force on the particle, m c T (v_wall − v) / dt, goes to the
+    collider's body as its reaction."""
     i = wp.tid()
     w = world[i]
     c = c_w[w]
     if c == 0.0:
         return
     vi = sol[i]
-    v[i] = vi
+    xi = x[i]
     wc = wall_collider[i]
     if wc >= 0:
         wl = wall[i]
         dv = apply_wall(wall_t[i], wp.vec3(wl[0], wl[1], wl[2]), v_wall[i] - vi) * c
-        K.add_reaction(cols, wc, dv * dt, x[i], mass[w], dt)
+        K.add_reaction(cols, wc, dv * dt, xi, mass[w], dt)
+    if move != 0:  # x and x_end are the same array
+        x_end[i] = xi + (vi - v[i]) * dt
+    v[i] = vi
 
 
 def chunks(world_sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -606,17 +729,31 @@ class ImplicitViscosity:
     """The viscosity solve's buffers and launches for one upload of a
     :class:`~pourbench.fluids.solver.PBFSolver` (built by its ``_upload`` when some world has
     a dynamic viscosity). A step runs :meth:`start` at the end of the solver's step (before
-    the colliders' poses roll over), :meth:`iteration` while :attr:`any_active` reads 1, then
-    :meth:`finish`."""
+    the colliders' poses roll over), :meth:`iteration` while :attr:`any_active` reads 1,
+    then for each further pass of :attr:`passes` :meth:`refine` and the iterations again,
+    then :meth:`finish`."""
 
-    def __init__(self, solver, c_w: np.ndarray, world_sizes: np.ndarray) -> None:
+    def __init__(
+        self, solver, c_w: np.ndarray, world_sizes: np.ndarray, shear_law: np.ndarray
+    ) -> None:
+        """``c_w``: dt ν of each world's reference viscosity (0: no solve); ``shear_law``:
+        (worlds, 4) τ_y (Pa), K (Pa·sⁿ), n and the reference viscosity η_ref (Pa·s) of each
+        world with a Herschel–Bulkley law, zeros for a Newtonian world."""
         dev, n = solver.device, solver.buf.n
         self.solver = solver
         self.kernels = HALF_LISTS if solver.half_lists else FULL_LISTS
         cfg = solver.config
         # 2(d+2) V · 45/(π h⁶) over the packing: V = spacing³, 45/(π h⁶) the spiky gradient's
         self.coef = 10.0 * cfg.spacing**3 * 45.0 / (math.pi * cfg.h**6) / cfg.laplacian_packing
+        self.coef_gradient = cfg.spacing**3 * 45.0 / (math.pi * cfg.h**6)  # V times the spiky's
         self.c_w = wp.array(c_w, dtype=float, device=dev)
+        self.shear_law = wp.array(np.asarray(shear_law, np.float32), dtype=wp.vec4, device=dev)
+        self.has_law = bool(np.any(np.asarray(shear_law)[:, 3] > 0))
+        size = n if self.has_law else 1
+        self.rate = wp.zeros(size, dtype=float, device=dev)
+        self.scale = wp.ones(size, dtype=float, device=dev)
+        self.grad = wp.zeros(size, dtype=wp.mat33, device=dev)
+        self.moment = wp.zeros(size, dtype=wp.mat33, device=dev)
         start, owner, first = chunks(world_sizes)
         self.chunk_start = wp.array(start, dtype=wp.int32, device=dev)
         self.chunk_world = wp.array(owner, dtype=wp.int32, device=dev)
@@ -647,21 +784,57 @@ class ImplicitViscosity:
             [self.lap],
         )
 
+    @property
+    def passes(self) -> int:
+        """Solves a step takes: ``SolverConfig.shear_passes`` with a shear law, else one."""
+        return self.solver.config.shear_passes if self.has_law else 1
+
     def start(self) -> None:
-        """Pair weights, preconditioner, right-hand side, and the first residual."""
+        """Pair weights, preconditioner, right-hand side, and the first residual; with a
+        shear law the particles' viscosities first, from the velocities to be solved."""
+        if self.has_law:
+            self._shear_viscosities("", self.solver.buf.v)
+        self._begin()
+
+    def refine(self) -> None:
+        """The next Picard pass: the particles' viscosities from the last pass's solution,
+        and the solve set up again from the same velocities (:meth:`start`)."""
+        self._shear_viscosities("_refine", self.sol)
+        self._begin()
+
+    def _shear_viscosities(self, key: str, velocities: wp.array) -> None:
+        s, cfg = self.solver, self.solver.config
+        b = s.buf
+        s.launches.launch(
+            "visc_gradient" + key,
+            self.kernels.velocity_gradient,
+            [b.x, velocities, *b.lists, b.world, self.shear_law, cfg.h, self.coef_gradient],
+            [self.grad, self.moment],
+        )
+        s.launches.launch(
+            "visc_shear" + key,
+            shear_viscosity,
+            [b.world, self.shear_law, cfg.plug_viscosity_pa_s],
+            [self.grad, self.moment, self.rate, self.scale],
+        )
+
+    def _begin(self) -> None:
         s, cfg = self.solver, self.solver.config
         b = s.buf
         d_min = 0.5 * cfg.radius  # a particle is never nearer a wall than its radius less a bit
         s.launches.launch(
             "visc_setup",
             self.kernels.setup,
-            [b.x, *b.lists, b.world, self.c_w, cfg.h, self.coef],
+            [b.x, *b.lists, b.world, self.c_w, self.shear_law, self.scale, cfg.h, self.coef],
             [self.u, self.diag],
         )
         s.launches.launch(
             "visc_start",
             start,
-            [b.x, b.v, b.world, self.c_w, b.wall, b.wall_collider, b.cols, cfg.h, d_min, cfg.dt],
+            [
+                *(b.x, b.v, b.world, self.c_w, b.wall, b.wall_collider, b.cols),
+                *(self.shear_law, self.scale, cfg.h, d_min, cfg.dt),
+            ],
             [self.diag, self.wall_t, self.v_wall, self.rhs, self.sol, self.inv_m],
         )
         # every viscous world takes part in the first product (c_w > 0 marks them)
@@ -734,9 +907,9 @@ class ImplicitViscosity:
             finish,
             [
                 *(b.world, self.c_w, b.mass, cfg.dt, b.x, b.wall, b.wall_collider),
-                *(self.wall_t, self.v_wall, self.sol, b.cols),
+                *(self.wall_t, self.v_wall, self.sol, b.cols, int(cfg.viscous_displacement)),
             ],
-            [b.v],
+            [b.v, b.x],
         )
 
     def body_drag(self) -> np.ndarray:
