@@ -28,9 +28,9 @@ pytestmark = pytest.mark.slow
 
 RECORDED = {
     "single water thesis": "9c48dc52c85eb51a",
-    "single honey free": "95618dbd813645e7",
+    "single honey free": "f765c7df5da549f7",
     "vector oil": "7781d29c86433889",
-    "solver honey two-cup": "844fb13b7006bb52",
+    "solver honey two-cup": "47e1c93cc885c673",
 }
 
 

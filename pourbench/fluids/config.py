@@ -73,8 +73,10 @@ class SolverConfig:
             (:mod:`pourbench.fluids.rheology`).
         viscous_displacement: the implicit viscosity solve also moves each particle by dt
             times the velocity it changed, so that a step's displacement is the solved
-            velocity's (the position update otherwise precedes the solve, and a liquid held
-            by its viscosity still moves by g dt² a step).
+            velocity's: the viscous force enters the position update implicitly, as gravity
+            does. Off, the position update precedes the solve and a liquid that its viscosity
+            holds still moves by g dt² a step: viscous pours then depend on the step and a
+            resting viscous liquid keeps a jitter of mm/s (docs/viscosity.md).
         shear_passes: solves a step takes for a liquid with a Herschel–Bulkley law, each
             taking the particles' viscosities from the velocities the last returned (Picard
             passes; the first takes them from the velocities to be solved).
@@ -130,7 +132,7 @@ class SolverConfig:
     min_viscous_diffusion: float = 0.0
     plug_viscosity_pa_s: float = 1000.0
     shear_passes: int = 2
-    viscous_displacement: bool = False
+    viscous_displacement: bool = True
     laplacian_packing: float = 0.897
     viscosity_rate: float = 1.0
     xsph_viscosity: float = 0.01

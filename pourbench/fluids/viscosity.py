@@ -362,6 +362,7 @@ def start(
     h: float,
     d_min: float,
     dt: float,
+    again: int,
     diag: wp.array(dtype=wp.mat33),
     wall_t: wp.array(dtype=wp.vec2),
     v_wall: wp.array(dtype=wp.vec3),
@@ -389,10 +390,11 @@ def start(
         t = wall_tensor(K.wall_distance(wl, xi), wl[4], h, d_min)
         if shear_law[w][3] > 0.0:  # the particle's own viscosity at its wall
             t = t * scale[i]
-        # the wall's velocity at the particle: the point of the collider there now, where
-        # it was at the step's start
-        local = wp.transform_point(wp.transform_inverse(cols.pose[wc]), xi)
-        vb = (xi - wp.transform_point(cols.pose_prev[wc], local)) / dt
+        if again != 0:  # a later pass: the poses have rolled over, the first pass's stands
+            vb = v_wall[i]
+        else:  # the point of the collider at the particle now, where it was at the step's start
+            local = wp.transform_point(wp.transform_inverse(cols.pose[wc]), xi)
+            vb = (xi - wp.transform_point(cols.pose_prev[wc], local)) / dt
     wall_t[i] = t
     v_wall[i] = vb
     rhs[i] = vi + apply_wall(t, n, vb) * c
@@ -794,13 +796,14 @@ class ImplicitViscosity:
         shear law the particles' viscosities first, from the velocities to be solved."""
         if self.has_law:
             self._shear_viscosities("", self.solver.buf.v)
-        self._begin()
+        self._begin("")
 
     def refine(self) -> None:
         """The next Picard pass: the particles' viscosities from the last pass's solution,
-        and the solve set up again from the same velocities (:meth:`start`)."""
+        and the solve set up again from the same velocities and walls (:meth:`start`; the
+        colliders' poses have rolled over since, so the walls' velocities are kept)."""
         self._shear_viscosities("_refine", self.sol)
-        self._begin()
+        self._begin("_refine")
 
     def _shear_viscosities(self, key: str, velocities: wp.array) -> None:
         s, cfg = self.solver, self.solver.config
@@ -818,7 +821,7 @@ class ImplicitViscosity:
             [self.grad, self.moment, self.rate, self.scale],
         )
 
-    def _begin(self) -> None:
+    def _begin(self, key: str) -> None:
         s, cfg = self.solver, self.solver.config
         b = s.buf
         d_min = 0.5 * cfg.radius  # a particle is never nearer a wall than its radius less a bit
@@ -829,11 +832,11 @@ class ImplicitViscosity:
             [self.u, self.diag],
         )
         s.launches.launch(
-            "visc_start",
+            "visc_start" + key,
             start,
             [
                 *(b.x, b.v, b.world, self.c_w, b.wall, b.wall_collider, b.cols),
-                *(self.shear_law, self.scale, cfg.h, d_min, cfg.dt),
+                *(self.shear_law, self.scale, cfg.h, d_min, cfg.dt, int(key != "")),
             ],
             [self.diag, self.wall_t, self.v_wall, self.rhs, self.sol, self.inv_m],
         )
