@@ -7,8 +7,11 @@ dt and with ν = μ / ρ,
 
     (I − dt ν ∇²) v' = v
 
-by conjugate gradients with a 3 × 3 block-Jacobi preconditioner, warm-started from v. The
-SPH Laplacian of a velocity field (Weiler et al., Eq. 11, after Monaghan) is
+by conjugate gradients with a 3 × 3 block-Jacobi preconditioner, warm-started from v. With
+``SolverConfig.viscous_displacement`` (on) :func:`finish` also moves each particle by dt
+times the velocity the solve changed: the step's positions were set before the solve, and so
+its displacement becomes the solved velocity's. The SPH Laplacian of a velocity field
+(Weiler et al., Eq. 11, after Monaghan) is
 
     ∇²v_i = 2 (d + 2) Σ_j V_j (v_ij · x_ij) / (|x_ij|² + 0.01 h²) ∇_i W_ij,  d = 3,
 
@@ -280,17 +283,14 @@ def viscosity_kernels(half: bool) -> ViscosityKernels:
         while k < k_end:
             j = nbr[k]
             r = xi - x[j]
-            d = wp.length(r)
-            if d < h and d > 1.0e-9:
-                q = h - d
-                gw = r * (-coef * q * q / d)  # V ∇_i W_ij, spiky kernel
-                gp = wp.outer(v[j] - vi, gw)
-                mp = wp.outer(-r, gw)
-                g += gp
-                m += mp
-                if wp.static(half):
-                    wp.atomic_add(grad, j, gp)
-                    wp.atomic_add(moment, j, mp)
+            gw = K.spiky_grad(r, wp.length(r), h, coef)  # V ∇_i W_ij, zero beyond h
+            gp = wp.outer(v[j] - vi, gw)
+            mp = wp.outer(-r, gw)
+            g += gp
+            m += mp
+            if wp.static(half):
+                wp.atomic_add(grad, j, gp)
+                wp.atomic_add(moment, j, mp)
             k += stride
         if wp.static(half):
             wp.atomic_add(grad, i, g)
@@ -747,7 +747,7 @@ class ImplicitViscosity:
         cfg = solver.config
         # 2(d+2) V · 45/(π h⁶) over the packing: V = spacing³, 45/(π h⁶) the spiky gradient's
         self.coef = 10.0 * cfg.spacing**3 * 45.0 / (math.pi * cfg.h**6) / cfg.laplacian_packing
-        self.coef_gradient = cfg.spacing**3 * 45.0 / (math.pi * cfg.h**6)  # V times the spiky's
+        self.coef_gradient = -(cfg.spacing**3) * 45.0 / (math.pi * cfg.h**6)  # V × the spiky's
         self.c_w = wp.array(c_w, dtype=float, device=dev)
         self.shear_law = wp.array(np.asarray(shear_law, np.float32), dtype=wp.vec4, device=dev)
         self.has_law = bool(np.any(np.asarray(shear_law)[:, 3] > 0))
