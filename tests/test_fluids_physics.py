@@ -191,9 +191,8 @@ JAMMED_AROUND_THE_SPHERE = {
     "RRS Ketchup": 0.700,
     "Hand-gel": 0.928,
 }
-"""The groups whose settled packing carries part of the liquid's weight past the held sphere
-since the viscous solve moves the particles it slows (``viscous_displacement``): their
-measured lift over Archimedes' (0.995, 0.990, 0.987 and 1.033 before; docs/contact.md)."""
+"""The groups whose settled packing carries part of the liquid's weight past the held sphere,
+with their measured lift over Archimedes' (docs/contact.md)."""
 
 
 @pytest.mark.slow
@@ -215,9 +214,8 @@ measured lift over Archimedes' (0.995, 0.990, 0.987 and 1.033 before; docs/conta
     ],
 )
 def test_a_held_sphere_feels_the_archimedes_lift(held_lifts: dict[str, float], liquid: str) -> None:
-    """A sphere held still in the liquid feels its Archimedes lift ρVg within 5 %. Measured
-    0.966–1.033 over the 18 groups before ``viscous_displacement`` (docs/contact.md); with
-    the plane's wall term alone, 1.047 for water and 1.067 for Honey in a 10 cm tank."""
+    """A sphere held still in the liquid feels its Archimedes lift ρVg within 5 %
+    (docs/contact.md has each group's)."""
     assert held_lifts[liquid] == pytest.approx(1.0, abs=0.05)
 
 
@@ -316,8 +314,8 @@ def test_viscous_liquids_pour_in_order(sleep: float) -> None:
 @pytest.mark.parametrize("spacing", [0.005, 0.004])
 def test_held_level_honey_pours_three_times_slower_than_water(spacing: float) -> None:
     """The tilt stopped at 90° and held: honey's half-pour time is at least three times
-    water's at the shipped spacing and a finer one (measured 3.95 at 5 mm, 3.71 at 4 mm; the
-    ratio still falls with the spacing, from 4.80 at 6 mm, docs/viscosity.md)."""
+    water's at the shipped spacing and a finer one (docs/viscosity.md has the ratios, which
+    still fall with the spacing)."""
     level, _ = half_pour_times(("water", "honey"), seconds=10.0, spacing=spacing, max_deg=90.0)
     assert np.all(np.isfinite(level)), level
     assert level[1] >= 3.0 * level[0], level
@@ -341,9 +339,8 @@ def test_a_sticky_pour_does_not_depend_on_the_step() -> None:
     half the step (dt = 1/480 s against the default 1/240): the half-pour time within 5 % and
     the grams left in the cup after 8 s within 5 g. Adhesion acts as a force (its pull a
     spring of one stiffness at any step, its grip scaled with dt²) and the viscous solve moves
-    the particles it slows (``SolverConfig.viscous_displacement``). Without the latter the
-    position update ran a step ahead of the viscosity and honey took 6.8 % longer at the half
-    step, ketchup 13 % (docs/viscosity.md, 'Viscosity in the position update')."""
+    the particles it slows (``SolverConfig.viscous_displacement``; docs/viscosity.md,
+    'Viscosity in the position update')."""
     sticky = ("honey", "ketchup")
     t_ref, left_ref = half_pour_times(sticky, seconds=8.0)
     t_half, left = half_pour_times(sticky, seconds=8.0, dt=1.0 / 480.0)

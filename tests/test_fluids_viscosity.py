@@ -275,9 +275,8 @@ def test_a_light_sphere_in_a_thick_liquid_sinks_steadily(light_sphere) -> None:
 
 @pytest.mark.xfail(
     strict=True,
-    reason="in 10 Pa·s it sinks at 0.63 of the closed form over the last 0.1 s (1.0 before "
-    "the viscous solve moved the particles it slows, SolverConfig.viscous_displacement): the "
-    "settled packing's resistance around a moving body (docs/viscosity.md)",
+    reason="in 10 Pa·s it sinks at 0.63 of the closed form over the last 0.1 s: the settled "
+    "packing's resistance around a moving body (docs/viscosity.md)",
 )
 def test_a_light_sphere_in_a_thick_liquid_sinks_at_the_closed_form(light_sphere) -> None:
     """In 10 Pa·s at the closed form's speed within 25 % over the last 0.1 s."""

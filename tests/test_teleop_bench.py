@@ -88,9 +88,14 @@ def test_confusions_count_the_wrong_letters_of_table_5_1s_held_out_runs() -> Non
 
     def row(skill, label, switched, method="skill_cpd", cls="identical"):
         return {
-            "method": method, "operator": "held-out demo", "task": "2d", "class": cls,
-            "skill": skill, "label": label, "switched": switched,
-        }  # fmt: skip
+            "method": method,
+            "operator": "held-out demo",
+            "task": "2d",
+            "class": cls,
+            "skill": skill,
+            "label": label,
+            "switched": switched,
+        }
 
     rows = [
         row("A", "N", True),

@@ -213,17 +213,16 @@ def shear_cell_check(device: str = "cpu") -> tuple[list[dict[str, Any]], list[di
         cell = shear_cell(newtonian(mu), SHEAR_RATES, config=cfg)
         rows += _shear_rows(cell, f"{mu:g} Pa·s")
         intercept, slope = cell.fit()
-        middle = float(np.median(cell.stresses))
+        share = cell.yield_share()
         fits.append(
             {
                 "viscosity_pa_s": mu,
                 "stress_at_zero_rate_pa": intercept,
-                "over_middle_stress": intercept / middle,
+                "over_middle_stress": share,
                 "slope_pa_s": slope,
                 "slope_over_viscosity": slope / mu,
                 "no_yield": "yes"
-                if abs(intercept) <= YIELD_LIMIT * middle
-                and abs(slope / mu - 1.0) <= SLOPE_TOLERANCE
+                if abs(share) <= YIELD_LIMIT and abs(slope / mu - 1.0) <= SLOPE_TOLERANCE
                 else "no",
             }
         )

@@ -9,9 +9,9 @@ A liquid profile with a yield stress τ_y, a consistency K and a flow index n
 n = 1 a Bingham plastic, n < 1 a shear-thinning liquid. The solver applies it as a viscosity
 that depends on the local shear rate, regularised so that it stays finite where the liquid
 does not flow (the bi-viscous form of :func:`apparent_viscosity`), by the implicit solve of
-:mod:`pourbench.fluids.viscosity` with the viscosity of each particle taken from the velocity
-field at the start of the solve. Over the steps of a steady flow that is a Picard iteration
-toward the fixed point where viscosity and velocity agree.
+:mod:`pourbench.fluids.viscosity`, each particle's viscosity taken from the velocity field by
+Picard passes (``SolverConfig.shear_passes``) toward the fixed point where viscosity and
+velocity agree.
 
 :func:`couette_inner_stress` is the closed form the solver is measured against: the stress on
 the inner cylinder of a concentric-cylinder cell (a Couette rheometer) turning at Ω inside a

@@ -433,8 +433,8 @@ class PBFSolver:
         solved world whose liquid has a Herschel–Bulkley law; zeros for the others."""
         laws = np.zeros((self.num_worlds, 4))
         for w, liq in enumerate(self.liquids):
-            law = liq.rheology()
-            if c_w[w] > 0 and liq.consistency_pa_sn is not None and law is not None:
+            if c_w[w] > 0 and liq.consistency_pa_sn is not None:
+                law = liq.rheology()
                 laws[w] = (
                     *(law.yield_stress_pa, law.consistency_pa_sn, law.flow_index),
                     liq.viscosity_pa_s,

@@ -20,12 +20,7 @@ from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.falling_ball import terminal_speed
 from pourbench.fluids.params import LiquidProfile, liquid_profile
-from pourbench.fluids.rheology import (
-    couette_inner_stress,
-    newtonian_rate,
-    omega_for_rate,
-    yield_tilt,
-)
+from pourbench.fluids.rheology import couette_inner_stress, omega_for_rate, yield_tilt
 from pourbench.fluids.scenarios import GRAVITY, tilt_schedule, two_cup_scene
 from pourbench.fluids.solver import PBFSolver
 from pourbench.geometry.fill import container_lattice
@@ -597,7 +592,6 @@ class ShearCell:
     liquid: str
     inner: float  # m, the turning cylinder's radius
     outer: float  # m, the fixed cup's inner radius
-    omegas: np.ndarray  # rad/s, the inner cylinder's speeds
     rates: np.ndarray  # 1/s, a Newtonian liquid's shear rate at the inner cylinder
     stresses: np.ndarray  # Pa, measured: the torque on the inner cylinder / (2π R₁² L)
     closed_form: np.ndarray  # Pa, the liquid's law's stress there (rheology.couette_inner_stress)
@@ -610,6 +604,11 @@ class ShearCell:
         """Least-squares line through (rate, stress): (stress at zero rate, Pa; slope, Pa·s)."""
         slope, intercept = np.polyfit(self.rates, self.stresses, 1)
         return float(intercept), float(slope)
+
+    def yield_share(self) -> float:
+        """The line's stress at zero rate over the stress at the middle rate (the median):
+        what :data:`YIELD_LIMIT` bounds for a Newtonian liquid."""
+        return self.fit()[0] / float(np.median(self.stresses))
 
 
 def shear_cell(
@@ -644,9 +643,10 @@ def shear_cell(
         raise InvalidParameterError(
             f"liquid {profile.name!r} has no physical viscosity: a shear cell measures one"
         )
-    omegas = np.array([omega_for_rate(rate, inner, outer) for rate in rates], float)
-    if len(omegas) == 0 or np.any(omegas <= 0):
-        raise InvalidParameterError(f"rates must be > 0, got {list(rates)!r}")
+    rates = np.asarray(rates, float)
+    if len(rates) == 0 or np.any(~(rates > 0)):
+        raise InvalidParameterError(f"rates must be > 0, got {rates.tolist()!r}")
+    omegas = np.array([omega_for_rate(rate, inner, outer) for rate in rates])
     if spin is None:
         nu = (profile.viscosity_pa_s or 0.0) / profile.density
         spin = max(1.5, 10.0 * (outer - inner) ** 2 / (math.pi**2 * nu))
@@ -712,8 +712,7 @@ def shear_cell(
         profile.name,
         inner,
         outer,
-        omegas,
-        np.array([newtonian_rate(o, inner, outer) for o in omegas]),
+        rates,
         stresses,
         np.array([couette_inner_stress(law, o, inner, outer) for o in omegas]),
         wetted,
@@ -732,7 +731,7 @@ class TiltedLayer:
     times: np.ndarray  # s since the tilt was reached
     shifts: np.ndarray  # (tilts, times) m, the layer's centre of mass downhill since then
     depth: float  # m, the layer's depth when flat
-    yield_tilt_deg: float  # the law's (rheology.yield_tilt), 90 without a yield stress
+    yield_tilt_deg: float  # the law's (rheology.yield_tilt): 0 without a yield stress
 
 
 def tilted_layer(
@@ -791,8 +790,8 @@ def tilted_layer(
         s.step(every)
         shifts.append(downhill() - start)
     law = profile.rheology()
-    yield_deg = 90.0
-    if law is not None and law.yield_stress_pa > 0:
-        yield_deg = math.degrees(yield_tilt(law, profile.density, depth, GRAVITY))
+    yield_deg = (
+        0.0 if law is None else math.degrees(yield_tilt(law, profile.density, depth, GRAVITY))
+    )
     times = every * cfg.dt * np.arange(1, samples + 1)
     return TiltedLayer(profile.name, np.degrees(tilts), times, np.array(shifts).T, depth, yield_deg)

@@ -675,7 +675,6 @@ def finish(
     c_w: wp.array(dtype=float),
     mass: wp.array(dtype=float),
     dt: float,
-    x: wp.array(dtype=wp.vec3),
     wall: wp.array(dtype=K.vec5),
     wall_collider: wp.array(dtype=wp.int32),
     wall_t: wp.array(dtype=wp.vec2),
@@ -684,7 +683,7 @@ def finish(
     cols: K.Colliders,
     move: int,
     v: wp.array(dtype=wp.vec3),
-    x_end: wp.array(dtype=wp.vec3),
+    x: wp.array(dtype=wp.vec3),
 ):
     """v = the solution; with ``move``, the particle also moves by dt times the velocity
     the solve took off or added, so that its step's displacement is the solved velocity's;
@@ -702,8 +701,8 @@ def finish(
         wl = wall[i]
         dv = apply_wall(wall_t[i], wp.vec3(wl[0], wl[1], wl[2]), v_wall[i] - vi) * c
         K.add_reaction(cols, wc, dv * dt, xi, mass[w], dt)
-    if move != 0:  # x and x_end are the same array
-        x_end[i] = xi + (vi - v[i]) * dt
+    if move != 0:
+        x[i] = xi + (vi - v[i]) * dt
     v[i] = vi
 
 
@@ -796,14 +795,14 @@ class ImplicitViscosity:
         shear law the particles' viscosities first, from the velocities to be solved."""
         if self.has_law:
             self._shear_viscosities("", self.solver.buf.v)
-        self._begin("")
+        self._begin(again=False)
 
     def refine(self) -> None:
         """The next Picard pass: the particles' viscosities from the last pass's solution,
         and the solve set up again from the same velocities and walls (:meth:`start`; the
         colliders' poses have rolled over since, so the walls' velocities are kept)."""
         self._shear_viscosities("_refine", self.sol)
-        self._begin("_refine")
+        self._begin(again=True)
 
     def _shear_viscosities(self, key: str, velocities: wp.array) -> None:
         s, cfg = self.solver, self.solver.config
@@ -821,7 +820,7 @@ class ImplicitViscosity:
             [self.grad, self.moment, self.rate, self.scale],
         )
 
-    def _begin(self, key: str) -> None:
+    def _begin(self, again: bool) -> None:
         s, cfg = self.solver, self.solver.config
         b = s.buf
         d_min = 0.5 * cfg.radius  # a particle is never nearer a wall than its radius less a bit
@@ -832,11 +831,11 @@ class ImplicitViscosity:
             [self.u, self.diag],
         )
         s.launches.launch(
-            "visc_start" + key,
+            "visc_start_refine" if again else "visc_start",
             start,
             [
                 *(b.x, b.v, b.world, self.c_w, b.wall, b.wall_collider, b.cols),
-                *(self.shear_law, self.scale, cfg.h, d_min, cfg.dt, int(key != "")),
+                *(self.shear_law, self.scale, cfg.h, d_min, cfg.dt, int(again)),
             ],
             [self.diag, self.wall_t, self.v_wall, self.rhs, self.sol, self.inv_m],
         )
@@ -909,7 +908,7 @@ class ImplicitViscosity:
             "visc_finish",
             finish,
             [
-                *(b.world, self.c_w, b.mass, cfg.dt, b.x, b.wall, b.wall_collider),
+                *(b.world, self.c_w, b.mass, cfg.dt, b.wall, b.wall_collider),
                 *(self.wall_t, self.v_wall, self.sol, b.cols, int(cfg.viscous_displacement)),
             ],
             [b.v, b.x],
