@@ -11,14 +11,16 @@ thesis used 5. The simulated operator is one of two:
   operator that the skill matches exactly). One repetition (only the outage differs
   between repetitions of a replay).
 
-Recognition uses :meth:`~pourbench.teleop.skills.SkillLibrary.recognize` with
-``invariant=True`` (our addition: the operator's prefix is aligned to each skill by rigid CPD
-before the HSMM scores it); without it, ±30° rotated letters are recognised about 20 % of the
-time. Its confidence is calibrated (:meth:`~pourbench.teleop.skills.SkillLibrary.calibrate`)
-on held-out demonstrations that are never operators: per letter demonstration 20, copied
-under the identical, ±30° and x1.3 / x1/1.3 variations (a translation changes no feature);
-per feeding target demonstrations 10-12. Skill-CPD and standard SA switch only when it is
->= λ_minconf (0.9 letters, 0.8 feeding) at the deadline.
+Recognition uses :meth:`~pourbench.teleop.skills.SkillLibrary.recognize` with the shape
+recognizer (``RECOGNIZER``, our addition: the operator's step directions against each skill's
+mean path, :mod:`pourbench.teleop.shape`; the thesis scores with the HSMMs) and
+``invariant=True`` (rotations up to 45° and scales up to 1.5 searched; without it, ±30°
+rotated letters are not recognised). Its confidence is calibrated
+(:meth:`~pourbench.teleop.skills.SkillLibrary.calibrate`) on held-out demonstrations that
+are never operators: per letter demonstration 20, copied under the identical, ±30° and x1.3
+/ x1/1.3 variations (a translation changes no direction); per feeding target demonstrations
+10-12. Skill-CPD and standard SA switch only when it is >= λ_minconf (0.9 letters, 0.8
+feeding) at the deadline.
 
 Letters outside the library: a second library learns the 21 letters other than
 ``UNKNOWN_LETTERS`` (B, D, O, U, Z) and is calibrated the same way. Its 5 unknown letters
@@ -156,6 +158,9 @@ VARIATIONS_3D = (
 
 OPERATORS = ("held-out demo", "skill replay")
 
+# How the bench recognises (docs/teleop.md measures the HSMM recognizer beside it).
+RECOGNIZER = "shape"
+
 # HSMM states of a letter skill (thesis: 5). Five states cut the letters' corners, in the LQT
 # reproduction and in what the recognition aligns to (docs/teleop.md measures both).
 LETTER_STATES = 20
@@ -221,7 +226,7 @@ def _library_without(left_out: str, log: Any) -> SkillLibrary:
     lib = SkillLibrary(0.006, n_states=LETTER_STATES).fit(
         {L: [d.points for d in letter_demos(L, 10, seed=SEED)] for L in known}
     )
-    lib.calibrate(_calibration_demos(known), invariant=True)
+    lib.calibrate(_calibration_demos(known), invariant=True, recognizer=RECOGNIZER)
     return lib
 
 
@@ -241,6 +246,7 @@ def _config(method: str, task: str) -> SkillCPDConfig:
         delta_d=0.006 if task == "2d" else 0.01,
         min_confidence=0.9 if task == "2d" else 0.8,
         invariant_recognition=True,
+        recognizer=RECOGNIZER,
         takeover_step=TAKEOVER_STEP,
         handback_speed=HANDBACK_SPEED,
     )
@@ -550,7 +556,7 @@ def _run(args: argparse.Namespace, pinned: str) -> int:
         {L: [d.points for d in letter_demos(L, 10, seed=SEED)] for L in LETTERS}
     )
     print("teleop: calibrating the recognition confidence on held-out demos", file=log)
-    lib2.calibrate(_calibration_demos(LETTERS), invariant=True)
+    lib2.calibrate(_calibration_demos(LETTERS), invariant=True, recognizer=RECOGNIZER)
     jobs: list[Job] = []
     operators = ("held-out demo",) if quick else OPERATORS
     for op in operators:
@@ -569,6 +575,7 @@ def _run(args: argparse.Namespace, pinned: str) -> int:
                 for T in FEEDING_TARGETS
             },
             invariant=True,
+            recognizer=RECOGNIZER,
         )
         for op in operators:
             for rep in range(3 if op == "held-out demo" else 1):
@@ -681,7 +688,7 @@ def _run(args: argparse.Namespace, pinned: str) -> int:
         f"kernel, {pinned}): median {np.median(regs):.1f} ms, p95 {np.percentile(regs, 95):.1f} "
         f"ms, max {regs.max():.1f} ms over {regs.size} switches; operator points "
         f"{int(np.median([a for a, _ in npts]))} (median), skill points "
-        f"{int(np.median([b for _, b in npts]))} (median); the rigid step resumes the invariant "
+        f"{int(np.median([b for _, b in npts]))} (median); the rigid step starts from the "
         f"recognition's alignment. Targets: median ≤ 10 ms, p95 ≤ 20 ms (the update period "
         f"is 33 ms)."
         if regs.size

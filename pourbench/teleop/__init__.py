@@ -9,6 +9,7 @@ an online forward variable, finite-horizon LQT from HSMM step-wise Gaussians, or
   Gauss Transform and low-rank kernel accelerations;
 * :mod:`~pourbench.teleop.network`: packets every 33 ms, outages, 50 ms deadline detector;
 * :mod:`~pourbench.teleop.skills`: skill library (HSMM + LQT per skill, recognition);
+* :mod:`~pourbench.teleop.shape`: the shape recognizer (step directions against a mean path);
 * :mod:`~pourbench.teleop.confidence`: the calibrated open-set recognition confidence;
 * :mod:`~pourbench.teleop.skill_cpd`: the arbitration state machine (Algorithms 2 and 3);
 * :mod:`~pourbench.teleop.demos`: generated letter and feeding demonstrations.
@@ -52,6 +53,7 @@ from pourbench.teleop.network import (
     random_outages,
     task_outage,
 )
+from pourbench.teleop.shape import ShapeMatch, ShapeModel, match_shape
 from pourbench.teleop.skill_cpd import (
     MODES,
     Registration,
@@ -60,7 +62,7 @@ from pourbench.teleop.skill_cpd import (
     closest_step,
     register_skill,
 )
-from pourbench.teleop.skills import Recognition, Skill, SkillLibrary
+from pourbench.teleop.skills import RECOGNIZERS, Recognition, Skill, SkillLibrary
 
 __all__ = [
     "DT_S",
@@ -70,6 +72,7 @@ __all__ = [
     "LETTERS",
     "LETTER_DURATION_S",
     "MODES",
+    "RECOGNIZERS",
     "WINDOWS",
     "CalibrationExample",
     "DeadlineDetector",
@@ -83,6 +86,8 @@ __all__ = [
     "Recognition",
     "Registration",
     "RigidResult",
+    "ShapeMatch",
+    "ShapeModel",
     "Skill",
     "SkillCPD",
     "SkillCPDConfig",
@@ -97,6 +102,7 @@ __all__ = [
     "letter_demos",
     "letter_template",
     "lqt_track",
+    "match_shape",
     "open_set_posterior",
     "random_outages",
     "register_nonrigid",

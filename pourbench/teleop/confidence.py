@@ -15,7 +15,8 @@ in skill ``k`` is
 ``c_k = exp(ll_k) / (sum_j exp(ll_j) + mean_j exp(ll_j^-) exp(m tau))``,
 
 where ``ll_j^- = log p_j(x_1..x_{n-m})`` (0 for the empty sequence, so for ``W >= n`` the
-"none" term is ``exp(n tau)``). ``c_k`` is the probability that the operator is doing skill
+"none" term is ``exp(n tau)``; a model calibrated with ``W = None`` always takes the whole
+trajectory, ``m = n``). ``c_k`` is the probability that the operator is doing skill
 ``k``, rather than another skill of the library or one that it does not hold; it is what
 thesis Eq. 5.2 compares with ``lambda_minconf``. Without a calibration only the closed-set
 posterior ``exp(ll_k) / sum_j exp(ll_j)`` exists; it saturates at 1 for any input (the
@@ -30,7 +31,8 @@ prefix lengths. Each scored prefix gives two labelled examples:
   the library does not hold): leave-one-skill-out, so no demonstration outside the library is
   needed, and the "none" examples are exactly the nearest impostors of the library.
 
-For each window ``W`` of :data:`WINDOWS` the summed log-probability of the targets is a
+For each candidate window ``W`` (:data:`WINDOWS` by default; ``None`` is the whole
+trajectory, as the shape recognition uses) the summed log-probability of the targets is a
 concave function of ``tau`` (each term is linear minus a log-sum-exp of terms linear in
 ``tau``); it is evaluated on a uniform grid over the bracket from the smallest to the largest
 per-sample log-likelihood rate of the examples' windows, widened by 1 nat per sample, and
@@ -60,7 +62,8 @@ __all__ = [
 ]
 
 WINDOWS: tuple[int, ...] = (5, 10, 20, 40)
-"""Candidate "none" windows ``W``, samples (Δd apart: 3-24 cm of path for letters)."""
+"""Candidate "none" windows ``W`` of the HSMM recognition, samples (Δd apart: 3-24 cm of path
+for letters)."""
 
 _GRID = 4001  # tau grid points between the smallest and largest per-sample rate
 
@@ -70,13 +73,13 @@ class NoneModel:
     """The calibrated "none of these" hypothesis.
 
     Attributes:
-        window: ``W``, samples.
+        window: ``W``, samples (``None``: the whole trajectory).
         tau: log-density per sample, nats.
         loglik: held-out log-likelihood of the calibration targets at ``tau``, nats.
         examples: number of scored held-out prefixes it was fitted on.
     """
 
-    window: int
+    window: int | None
     tau: float
     loglik: float
     examples: int
@@ -89,8 +92,9 @@ class CalibrationExample:
     Attributes:
         logliks: (K,) partial log-likelihood of every skill of the library, nats (``-inf``
             allowed: a skill that rejected the prefix).
-        before: (K, len(WINDOWS)) log-likelihood of the prefix without its last ``W``
-            samples, per skill and window, nats (0 when ``W >= n``).
+        before: (K, len(windows)) log-likelihood of the prefix without its last ``W``
+            samples, per skill and candidate window of the calibration, nats (0 when
+            ``W >= n`` or ``W`` is ``None``).
         n: number of samples of the prefix (>= 1).
         target: index of the prefix's own skill in ``logliks``.
     """
@@ -99,6 +103,11 @@ class CalibrationExample:
     before: np.ndarray
     n: int
     target: int
+
+
+def _span(window: int | None, n: int) -> int:
+    """``m``: how many of the last samples the "none" hypothesis explains."""
+    return n if window is None else min(window, n)
 
 
 def _none_term(before: np.ndarray, m: int, tau: float) -> float:
@@ -136,18 +145,21 @@ def open_set_posterior(
                 f"with a calibrated model, before must be {ll.size} log-likelihoods "
                 f"(without the last model.window samples), got {before!r}"
             )
-        m = min(model.window, check_int("n", n, minimum=1))
+        m = _span(model.window, check_int("n", n, minimum=1))
         z = np.append(ll, _none_term(np.asarray(before, dtype=float), m, model.tau))
     if not np.any(np.isfinite(z)):
         return np.zeros(z.shape)
     return np.exp(z - logsumexp(z))
 
 
-def _loglik_grid(col: int, examples: Sequence[CalibrationExample], taus: np.ndarray) -> np.ndarray:
-    """Log-likelihood of the calibration targets for window ``WINDOWS[col]``, per ``tau``."""
+def _loglik_grid(
+    window: int | None, col: int, examples: Sequence[CalibrationExample], taus: np.ndarray
+) -> np.ndarray:
+    """Log-likelihood of the calibration targets for ``window`` (column ``col`` of the
+    examples' ``before``), per ``tau``."""
     total = np.zeros(taus.shape)
     for ex in examples:
-        m = min(WINDOWS[col], ex.n)
+        m = _span(window, ex.n)
         before = ex.before[:, col]
         own = ex.logliks[ex.target]
         if np.isfinite(own):  # else its probability is 0 whatever tau is: no information
@@ -161,13 +173,27 @@ def _loglik_grid(col: int, examples: Sequence[CalibrationExample], taus: np.ndar
     return total
 
 
-def fit_none_model(examples: Sequence[CalibrationExample]) -> NoneModel:
+def fit_none_model(
+    examples: Sequence[CalibrationExample], windows: Sequence[int | None] = WINDOWS
+) -> NoneModel:
     """Calibrated ``W`` and ``tau`` from held-out examples (see the module docstring).
 
+    Args:
+        examples: the scored held-out prefixes, their ``before`` with one column per window.
+        windows: the candidate windows ``W``, samples (integers >= 1, or ``None`` for the
+            whole trajectory).
+
     Raises:
-        InvalidParameterError: no examples, fewer than two skills, a malformed example, or
-            no example whose own skill gave a finite log-likelihood.
+        InvalidParameterError: no examples or no windows, a window that is neither None nor
+            an integer >= 1, fewer than two skills, a malformed example, or no example whose
+            own skill gave a finite log-likelihood.
     """
+    windows = tuple(windows)
+    if not windows:
+        raise InvalidParameterError("calibration needs at least one candidate window")
+    for w in windows:
+        if w is not None:
+            check_int("window", w, minimum=1)
     if not examples:
         raise InvalidParameterError("calibration needs at least one held-out example")
     for i, ex in enumerate(examples):
@@ -182,7 +208,7 @@ def fit_none_model(examples: Sequence[CalibrationExample]) -> NoneModel:
             and not isinstance(ex.target, bool)
             and 0 <= ex.target < ll.size
             and ex.n >= 1
-            and np.shape(ex.before) == (ll.size, len(WINDOWS))
+            and np.shape(ex.before) == (ll.size, len(windows))
             and not np.any(np.isnan(ll))
             and not np.any(np.isnan(ex.before))
         )
@@ -194,23 +220,23 @@ def fit_none_model(examples: Sequence[CalibrationExample]) -> NoneModel:
         )
     best: NoneModel | None = None
     best_evidence = -np.inf
-    for col, w in enumerate(WINDOWS):
+    for col, w in enumerate(windows):
         rates = []
         for ex in examples:
             with np.errstate(invalid="ignore"):  # -inf - -inf: a rejecting skill
-                r = (ex.logliks - ex.before[:, col]) / min(w, ex.n)
+                r = (ex.logliks - ex.before[:, col]) / _span(w, ex.n)
             rates.extend(r[np.isfinite(r)])
         if not rates:
             continue
         taus = np.linspace(min(rates) - 1.0, max(rates) + 1.0, _GRID)
-        logl = _loglik_grid(col, examples, taus)
+        logl = _loglik_grid(w, col, examples, taus)
         evidence = float(logsumexp(logl) + np.log(taus[1] - taus[0]))
         post = np.exp(logl - logl.max())
         tau = float(np.sum(taus * post) / np.sum(post))
         if evidence > best_evidence:
             best_evidence = evidence
             best = NoneModel(
-                w, tau, float(_loglik_grid(col, examples, np.array([tau]))[0]), len(examples)
+                w, tau, float(_loglik_grid(w, col, examples, np.array([tau]))[0]), len(examples)
             )
     if best is None:
         raise InvalidParameterError("no finite held-out score: cannot calibrate")

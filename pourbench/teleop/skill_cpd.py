@@ -29,9 +29,10 @@ Registration (Algorithm 3, mode ``"skill_cpd"``). The rough disconnection index 
 the operator's number of Δd samples (skill steps are one Δd sample of the demonstrations
 apart). The skill prefix up to ``i0`` + 10 steps is registered rigidly (with scale) onto
 ``xi_h*`` and the transform applied to the whole skill; ``i0`` is then divided by the
-recovered scale. With invariant recognition that same rigid CPD (same prefix, same points)
-already ran, with a looser tolerance, to align the operator for the recognised skill: the
-registration resumes its EM instead of starting again. If the mean distance from ``xi_h*``
+recovered scale. With invariant HSMM recognition that same rigid CPD (same prefix, same
+points) already ran, with a looser tolerance, to align the operator for the recognised skill:
+the registration resumes its EM instead of starting again; the shape recognizer's scale and
+rotation start it the same way. If the mean distance from ``xi_h*``
 to the registered skill (as a polyline) is 0.1 cm or more, the rigidly registered prefix
 is registered non-rigidly (``beta = 3``, ``lmbda = 3``) and CPD's displacement field, which
 is defined everywhere, is applied to the whole skill. (The thesis registers the complete
@@ -56,7 +57,7 @@ import numpy as np
 from pourbench.errors import InvalidParameterError, check_finite, check_int, check_positive
 from pourbench.teleop.cpd import RigidResult, register_nonrigid, register_rigid
 from pourbench.teleop.network import DeadlineDetector
-from pourbench.teleop.skills import Recognition, SkillLibrary
+from pourbench.teleop.skills import RECOGNIZERS, Recognition, SkillLibrary
 
 __all__ = [
     "MODES",
@@ -99,14 +100,17 @@ class SkillCPDConfig:
         lmbda: non-rigid regularisation weight.
         fgt: use the Fast Gauss Transform in non-rigid CPD.
         lowrank: use the low-rank kernel in non-rigid CPD.
-        invariant_recognition: recognise after aligning the operator's trajectory to each
-            skill with rigid CPD (see :meth:`SkillLibrary.recognize`); off in the thesis.
+        invariant_recognition: recognise a rotated or scaled operator too (see
+            :meth:`SkillLibrary.recognize`); off in the thesis.
+        recognizer: how the library scores the operator's trajectory, one of
+            :data:`~pourbench.teleop.skills.RECOGNIZERS`: ``"hsmm"`` (the thesis) or
+            ``"shape"`` (ours: step directions against each skill's mean path).
         cpd_tol: CPD stops when sigma^2 changes by less than this fraction per iteration.
         cpd_max_iter: CPD iteration cap (rigid and non-rigid each).
 
     Raises:
-        InvalidParameterError: at construction, for an unknown mode; ``dt``, ``deadline``,
-            ``delta_d``, ``alpha_step``, ``beta`` or ``lmbda`` not finite and > 0;
+        InvalidParameterError: at construction, for an unknown mode or recognizer; ``dt``,
+            ``deadline``, ``delta_d``, ``alpha_step``, ``beta`` or ``lmbda`` not finite and > 0;
             ``takeover_step`` outside (0, 1]; ``handback_speed`` negative or not finite;
             ``min_confidence`` outside [0, 1]; ``rigid_error`` or ``cpd_tol`` negative or
             not finite; ``cpd_w`` outside [0, 1); ``window`` not an integer >= 0;
@@ -129,12 +133,17 @@ class SkillCPDConfig:
     fgt: bool = False
     lowrank: bool = True
     invariant_recognition: bool = False
+    recognizer: str = "hsmm"
     cpd_tol: float = 1e-4
     cpd_max_iter: int = 100
 
     def __post_init__(self) -> None:
         if not isinstance(self.mode, str) or self.mode not in MODES:
             raise InvalidParameterError(f"mode must be one of {MODES}, got {self.mode!r}")
+        if not isinstance(self.recognizer, str) or self.recognizer not in RECOGNIZERS:
+            raise InvalidParameterError(
+                f"recognizer must be one of {list(RECOGNIZERS)}, got {self.recognizer!r}"
+            )
         for name in ("dt", "deadline", "delta_d", "alpha_step", "beta", "lmbda"):
             check_positive(name, getattr(self, name))
         if check_positive("takeover_step", self.takeover_step) > 1.0:
@@ -339,7 +348,8 @@ class SkillCPD:
         InvalidParameterError: ``library`` has no skills (not fitted), or the mode may
             switch (``"standard"``, ``"skill_cpd"``) and the library is not calibrated
             (:meth:`~pourbench.teleop.skills.SkillLibrary.calibrate`) for the recognition
-            mode of ``config`` (``invariant_recognition``). :meth:`step` raises the same
+            mode of ``config`` (``recognizer``, ``invariant_recognition``). :meth:`step`
+            raises the same
             if the library loses that calibration later (it is refitted).
     """
 
@@ -348,15 +358,17 @@ class SkillCPD:
             raise InvalidParameterError("library has no skills: call library.fit() first")
         self.library = library
         self.config = config or SkillCPDConfig()
-        if self.config.mode != "none" and (
-            library.calibration(invariant=self.config.invariant_recognition) is None
+        cfg = self.config
+        if cfg.mode != "none" and (
+            library.calibration(invariant=cfg.invariant_recognition, recognizer=cfg.recognizer)
+            is None
         ):
             raise InvalidParameterError(
-                f"the library is not calibrated for invariant_recognition="
-                f"{self.config.invariant_recognition}: without calibration its confidence is "
-                f"a closed-set posterior (about 1 for any input) and cannot gate the switch; "
-                f"call library.calibrate(held_out_demos, "
-                f"invariant={self.config.invariant_recognition})"
+                f"the library is not calibrated for recognizer={cfg.recognizer!r}, "
+                f"invariant_recognition={cfg.invariant_recognition}: without calibration its "
+                f"confidence is a closed-set posterior (about 1 for any input) and cannot gate "
+                f"the switch; call library.calibrate(held_out_demos, "
+                f"invariant={cfg.invariant_recognition}, recognizer={cfg.recognizer!r})"
             )
         self.detector = DeadlineDetector(self.config.deadline)
         self.state = "direct"
@@ -429,15 +441,18 @@ class SkillCPD:
             return False
         X = np.array(self.history)
         t0 = time.perf_counter()
-        rec = self.library.recognize(X, invariant=cfg.invariant_recognition)
+        rec = self.library.recognize(
+            X, invariant=cfg.invariant_recognition, recognizer=cfg.recognizer
+        )
         t1 = time.perf_counter()
         if not rec.calibrated:  # a closed-set confidence is about 1 for any input
             raise InvalidParameterError(
                 f"recognised skill {rec.label!r} with confidence {rec.confidence:.3g} from a "
-                f"library no longer calibrated for invariant_recognition="
-                f"{cfg.invariant_recognition} (refitting drops calibrations): the switch "
-                f"cannot be gated; call library.calibrate(held_out_demos, "
-                f"invariant={cfg.invariant_recognition})"
+                f"library no longer calibrated for recognizer={cfg.recognizer!r}, "
+                f"invariant_recognition={cfg.invariant_recognition} (refitting drops "
+                f"calibrations): the switch cannot be gated; call "
+                f"library.calibrate(held_out_demos, invariant={cfg.invariant_recognition}, "
+                f"recognizer={cfg.recognizer!r})"
             )
         self.recognitions.append((float(t), rec))
         if rec.confidence < cfg.min_confidence:

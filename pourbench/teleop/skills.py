@@ -16,6 +16,12 @@ over the skills, and :attr:`Recognition.calibrated` is False. Optionally
 with rigid CPD, so a rotated or scaled operator is still recognised; such scores differ from
 the plain ones, so each mode has its own calibration. Results are cached per trajectory, so
 the same partial trajectory asked twice costs nothing the second time.
+
+A second recognizer (``recognizer="shape"``, our addition) scores the operator's step
+directions against each skill's mean path instead (:mod:`~pourbench.teleop.shape`), invariant
+to translation always and, with ``invariant=True``, to a rotation and a scale within the same
+limits, searched exhaustively rather than by CPD. Its "none of these" hypothesis explains the
+whole trajectory (``W = None``); docs/teleop.md measures both recognizers.
 """
 
 from __future__ import annotations
@@ -43,8 +49,13 @@ from pourbench.teleop.cpd import RigidResult, register_rigid
 from pourbench.teleop.demos import delta_sample
 from pourbench.teleop.hsmm import HSMM, Progress, trajectory_features
 from pourbench.teleop.lqt import lqt_track
+from pourbench.teleop.shape import ShapeMatch, ShapeModel, match_shape
 
-__all__ = ["Recognition", "Skill", "SkillLibrary"]
+__all__ = ["RECOGNIZERS", "Recognition", "Skill", "SkillLibrary"]
+
+RECOGNIZERS: tuple[str, ...] = ("hsmm", "shape")
+"""How :meth:`SkillLibrary.recognize` scores a partial trajectory: the HSMM's partial
+likelihood (the thesis) or the step directions against the mean path (ours)."""
 
 
 @dataclass(frozen=True)
@@ -56,11 +67,14 @@ class Skill:
         model: the fitted HSMM.
         trajectory: (M, D) LQT reproduction, one point per HSMM step, metres (``xi_a``),
             starting at the demonstrations' mean start point.
+        shape: the demonstrations' mean path and step-direction spread, for the shape
+            recognizer (``None`` for one-dimensional skills, which have no rotation).
     """
 
     label: str
     model: HSMM
     trajectory: np.ndarray
+    shape: ShapeModel | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -75,9 +89,10 @@ class Recognition:
         logliks: partial log-likelihood per skill, nats.
         calibrated: whether the library was calibrated for this recognition mode.
         none: probability of "none of these" (0.0 when not ``calibrated``).
-        alignment: invariant mode: the rigid CPD that aligned the best skill's first
-            ``n + 10`` steps onto the points (a warm start for the registration), else
-            ``None``.
+        alignment: invariant mode: the similarity that maps the best skill's trajectory onto
+            the points (a warm start for the registration): the HSMM recognizer's rigid CPD
+            of its first ``n + 10`` steps, or the shape recognizer's scale and rotation about
+            the operator's start point; else ``None``.
     """
 
     label: str
@@ -87,6 +102,27 @@ class Recognition:
     calibrated: bool = False
     none: float = 0.0
     alignment: RigidResult | None = field(default=None, repr=False, compare=False)
+
+
+@dataclass(frozen=True)
+class _Scores:
+    """Every skill's score of one partial trajectory in one recognition mode.
+
+    Attributes:
+        names: the skills, in the library's order.
+        logliks: (K,) scores, nats (``-inf``: a skill that rejected the trajectory).
+        before: (K, windows) scores without each window's last samples, nats.
+        fractions: (K,) estimated progress along each skill.
+        terms: how many per-sample terms a score sums (the "none" hypothesis' ``n``).
+        alignments: label -> similarity onto the points, where the mode made one.
+    """
+
+    names: list[str]
+    logliks: np.ndarray
+    before: np.ndarray
+    fractions: np.ndarray
+    terms: int
+    alignments: dict[str, RigidResult]
 
 
 class SkillLibrary:
@@ -171,7 +207,8 @@ class SkillLibrary:
         D = origin.size
         x0 = np.concatenate([np.zeros(D), model.mu[0, D:]])
         rep = lqt_track(mu, sigma, r=self.lqt_r, x0=x0)
-        return Skill(label, model, rep.positions + origin)
+        shape = ShapeModel(trajs, paths, self.delta_d) if D >= 2 else None
+        return Skill(label, model, rep.positions + origin, shape)
 
     def skill(self, label: str) -> Skill:
         """The skill named ``label``."""
@@ -190,18 +227,89 @@ class SkillLibrary:
             )
         return pts
 
-    @staticmethod
-    def _mode(invariant: bool, max_rotation_deg: float, max_scale: float) -> tuple[object, ...]:
+    def _mode(
+        self, invariant: bool, max_rotation_deg: float, max_scale: float, recognizer: str
+    ) -> tuple[object, ...]:
         """Key of a recognition mode (the alignment limits matter only when invariant)."""
+        if not isinstance(recognizer, str) or recognizer not in RECOGNIZERS:
+            raise InvalidParameterError(
+                f"recognizer must be one of {list(RECOGNIZERS)}, got {recognizer!r}"
+            )
+        if not isinstance(invariant, bool | np.bool_):
+            raise InvalidParameterError(f"invariant must be True or False, got {invariant!r}")
         check_finite("max_rotation_deg", max_rotation_deg, minimum=0.0)
         check_finite("max_scale", max_scale, minimum=1.0)
-        return (True, float(max_rotation_deg), float(max_scale)) if invariant else (False,)
+        if recognizer == "shape" and any(sk.shape is None for sk in self.skills.values()):
+            raise InvalidParameterError(
+                "the shape recognizer needs skills of at least two dimensions (it rotates the "
+                "first two coordinates); use recognizer='hsmm'"
+            )
+        if invariant:
+            return (recognizer, True, float(max_rotation_deg), float(max_scale))
+        return (recognizer, False)
+
+    def _scores(
+        self, pts: np.ndarray, mode: tuple[object, ...], windows: tuple[int | None, ...]
+    ) -> _Scores:
+        """Every skill's score of validated points in a recognition mode, with the scores
+        without each window's last samples (the "none" hypothesis' ``before``)."""
+        names = list(self.skills)
+        if mode[0] == "hsmm":
+            lookbacks = tuple(w for w in windows if w is not None)
+            prog, aligns = self._progress(pts, mode, lookbacks)
+            return _Scores(
+                names,
+                np.array([prog[k].loglik for k in names]),
+                np.array([prog[k].before for k in names]).reshape(len(names), len(lookbacks)),
+                np.array([prog[k].fraction for k in names]),
+                pts.shape[0],
+                aligns,
+            )
+        if mode[1]:
+            _, _, max_rotation_deg, max_scale = mode
+            assert isinstance(max_rotation_deg, float) and isinstance(max_scale, float)
+            limits = {"max_rotation": np.radians(max_rotation_deg), "max_scale": max_scale}
+        else:
+            limits = {}
+        shapes = {k: sk.shape for k, sk in self.skills.items()}
+        matches = {k: match_shape(pts, m, **limits) for k, m in shapes.items() if m is not None}
+        before = np.zeros((len(names), len(windows)))
+        for col, w in enumerate(windows):
+            if w is not None and pts.shape[0] - w >= 2:
+                head = pts[: pts.shape[0] - w]
+                before[:, col] = [match_shape(head, shapes[k], **limits).loglik for k in names]
+        ll = np.array([matches[k].loglik for k in names])
+        best = names[int(np.argmax(ll))]
+        return _Scores(
+            names,
+            ll,
+            before,
+            np.array([matches[k].fraction for k in names]),
+            pts.shape[0] - 1,  # one term a step
+            {best: self._shape_alignment(pts, self.skills[best], matches[best])},
+        )
+
+    def _shape_alignment(self, pts: np.ndarray, skill: Skill, m: ShapeMatch) -> RigidResult:
+        """The shape match as the similarity that maps the skill's trajectory onto ``pts``:
+        its start onto the operator's start, turned by the rotation and scaled; ``sigma2`` is
+        the mean squared distance from the operator's points to that image per dimension (at
+        least (Δd / 2)², so that the registration's EM starts wide enough to move)."""
+        D = pts.shape[1]
+        R = np.eye(D)
+        c, s = np.cos(m.rotation), np.sin(m.rotation)
+        R[:2, :2] = [[c, -s], [s, c]]
+        traj = skill.trajectory
+        t = pts[0] - m.scale * R @ traj[0]
+        image = m.scale * traj @ R.T + t
+        d2 = np.min(((pts[:, None, :] - image[None, :, :]) ** 2).sum(-1), axis=1)
+        sigma2 = max(float(d2.mean()) / D, 0.25 * self.delta_d**2)
+        return RigidResult(image, R, t, m.scale, sigma2, 0)
 
     def _progress(
         self, pts: np.ndarray, mode: tuple[object, ...], lookbacks: tuple[int, ...] = ()
     ) -> tuple[dict[str, Progress], dict[str, RigidResult]]:
         """Partial HSMM scores of every skill for validated points, and the alignments."""
-        if not mode[0]:
+        if not mode[1]:
             f = trajectory_features(pts)
             return {k: sk.model.partial(f, lookbacks) for k, sk in self.skills.items()}, {}
         trajectory_features(pts)  # same checks (>= 2 finite points) as the plain mode
@@ -209,7 +317,7 @@ class SkillLibrary:
             raise InvalidParameterError(
                 "points are all identical: an invariant alignment needs a spread of points"
             )
-        _, max_rotation_deg, max_scale = mode
+        _, _, max_rotation_deg, max_scale = mode
         assert isinstance(max_rotation_deg, float) and isinstance(max_scale, float)
         prog, aligns = {}, {}
         for k, sk in self.skills.items():
@@ -232,50 +340,55 @@ class SkillLibrary:
         invariant: bool = False,
         max_rotation_deg: float = 45.0,
         max_scale: float = 1.5,
+        recognizer: str = "hsmm",
     ) -> Recognition:
         """Recognise a partial, Δd-sampled trajectory (n >= 2, metres).
 
         Args:
             points: (n, D) operator trajectory so far.
-            invariant: first align the trajectory to each skill with rigid CPD (rotation,
-                scale, translation; template = the skill's first ``n + 10`` steps, n = number
-                of operator samples) and score the aligned trajectory, so that a rotated or
-                scaled operator is still recognised. Alignments rotating by more than
-                ``max_rotation_deg`` or scaling by more than ``max_scale`` (or less than its
-                inverse) are rejected.
+            invariant: recognise a rotated or scaled operator too. The HSMM recognizer first
+                aligns the trajectory to each skill with rigid CPD (rotation, scale,
+                translation; template = the skill's first ``n + 10`` steps, n = number of
+                operator samples) and scores the aligned trajectory, rejecting alignments
+                that rotate by more than ``max_rotation_deg`` or scale by more than
+                ``max_scale`` (or less than its inverse); the shape recognizer searches
+                every rotation and scale within those limits.
             max_rotation_deg: largest accepted rotation, degrees (finite, >= 0).
             max_scale: largest accepted scale factor (finite, >= 1).
+            recognizer: ``"hsmm"`` (the thesis: the HSMMs' partial likelihood) or
+                ``"shape"`` (the step directions against the mean path,
+                :mod:`~pourbench.teleop.shape`); one of :data:`RECOGNIZERS`.
 
         Returns:
             The most likely skill; its confidence is calibrated (open set) when
-            :meth:`calibrate` was run for this mode (the same ``invariant`` and, when
-            invariant, the same limits), else the closed-set posterior.
+            :meth:`calibrate` was run for this mode (the same ``recognizer``, ``invariant``
+            and, when invariant, the same limits), else the closed-set posterior.
 
         Raises:
             InvalidParameterError: the library is empty, ``points`` is not a finite (n >= 2,
-                D) array with the skills' D, or ``max_rotation_deg`` / ``max_scale`` is out
-                of its range.
+                D) array with the skills' D (a moving one, for an invariant or shape
+                recognition), ``recognizer`` is unknown, or ``max_rotation_deg`` /
+                ``max_scale`` is out of its range.
         """
         pts = self._check_points(points)
-        mode = self._mode(invariant, max_rotation_deg, max_scale)
+        mode = self._mode(invariant, max_rotation_deg, max_scale, recognizer)
         key = (pts.tobytes(), pts.shape, mode)
         if key in self._cache:
             return self._cache[key]
         model = self._none.get(mode)
-        prog, aligns = self._progress(pts, mode, (model.window,) if model else ())
-        names = list(prog)
-        ll = np.array([prog[k].loglik for k in names])
-        before = np.array([prog[k].before[0] for k in names]) if model else None
-        post = open_set_posterior(ll, before, pts.shape[0], model)
+        sc = self._scores(pts, mode, (model.window,) if model else ())
+        ll = sc.logliks
+        post = open_set_posterior(ll, sc.before[:, 0] if model else None, sc.terms, model)
         best = int(np.argmax(ll)) if np.any(np.isfinite(ll)) else 0
+        label = sc.names[best]
         out = Recognition(
-            names[best],
+            label,
             float(post[best]),
-            prog[names[best]].fraction if np.isfinite(ll[best]) else 0.0,
-            {k: float(v) for k, v in zip(names, ll, strict=True)},
+            float(sc.fractions[best]) if np.isfinite(ll[best]) else 0.0,
+            {k: float(v) for k, v in zip(sc.names, ll, strict=True)},
             calibrated=model is not None,
             none=float(post[-1]) if model is not None else 0.0,
-            alignment=aligns.get(names[best]),
+            alignment=sc.alignments.get(label),
         )
         if len(self._cache) > 64:
             self._cache.clear()
@@ -290,14 +403,19 @@ class SkillLibrary:
         invariant: bool = False,
         max_rotation_deg: float = 45.0,
         max_scale: float = 1.5,
+        recognizer: str = "hsmm",
     ) -> NoneModel:
         """Learn the "none of these" hypothesis from held-out demonstrations.
 
         See :mod:`~pourbench.teleop.confidence` for the model and the fit. Every
         demonstration is Δd-sampled and scored at each prefix ``fractions`` of its length
         (at least 2 samples), with the same recognition mode as :meth:`recognize`
-        (``invariant`` and its limits); later recognitions in that mode return the
-        calibrated confidence. Refitting skills drops every calibration.
+        (``recognizer``, ``invariant`` and its limits); later recognitions in that mode
+        return the calibrated confidence. Refitting skills drops every calibration. The
+        HSMM recognizer's window ``W`` is chosen among :data:`~pourbench.teleop.confidence.
+        WINDOWS`; the shape recognizer's is the whole trajectory (its score is one
+        alignment of the whole trajectory, so a shorter window is scored under another
+        alignment than the rest).
 
         Args:
             demos: skill label -> list of (n, D) raw trajectories of that skill (metres),
@@ -305,7 +423,8 @@ class SkillLibrary:
                 all (for the leave-one-skill-out "none" examples), no unknown label.
             fractions: prefix lengths as fractions of each demonstration, each in (0, 1]
                 (default: 40-60 %, where the benchmark's network drops fall).
-            invariant, max_rotation_deg, max_scale: the recognition mode calibrated.
+            invariant, max_rotation_deg, max_scale, recognizer: the recognition mode
+                calibrated.
 
         Returns:
             The fitted hypothesis (window ``W`` and log-density ``tau``).
@@ -313,9 +432,9 @@ class SkillLibrary:
         Raises:
             InvalidParameterError: an empty or uncalibratable library (fewer than two
                 skills), malformed demonstrations (as :meth:`fit`), a demonstration with
-                fewer than 2 Δd samples, bad ``fractions`` or alignment limits, or no
-                demonstration scored finitely by its own skill. The library is then
-                unchanged.
+                fewer than 2 Δd samples, bad ``fractions``, alignment limits or
+                ``recognizer``, or no demonstration scored finitely by its own skill. The
+                library is then unchanged.
             UnknownNameError: a label that is not a skill of the library.
         """
         if len(self.skills) < 2:
@@ -331,7 +450,8 @@ class SkillLibrary:
             raise InvalidParameterError(f"fractions must be numbers, got {fractions!r}") from exc
         if not fr or any(not 0.0 < f <= 1.0 for f in fr):
             raise InvalidParameterError(f"fractions must be in (0, 1], got {fractions!r}")
-        mode = self._mode(invariant, max_rotation_deg, max_scale)
+        mode = self._mode(invariant, max_rotation_deg, max_scale, recognizer)
+        windows: tuple[int | None, ...] = WINDOWS if recognizer == "hsmm" else (None,)
         names = list(self.skills)
         examples = []
         for label, arrs in prepared.items():
@@ -343,20 +463,25 @@ class SkillLibrary:
                     )
                 for f in fr:
                     n = max(2, round(f * pts.shape[0]))
-                    prog, _ = self._progress(pts[:n], mode, WINDOWS)
-                    ll = np.array([prog[k].loglik for k in names])
-                    before = np.array([prog[k].before for k in names])
-                    examples.append(CalibrationExample(ll, before, n, names.index(label)))
-        model = fit_none_model(examples)
+                    sc = self._scores(pts[:n], mode, windows)
+                    examples.append(
+                        CalibrationExample(sc.logliks, sc.before, sc.terms, names.index(label))
+                    )
+        model = fit_none_model(examples, windows)
         self._none[mode] = model
         self._cache.clear()
         return model
 
     def calibration(
-        self, *, invariant: bool = False, max_rotation_deg: float = 45.0, max_scale: float = 1.5
+        self,
+        *,
+        invariant: bool = False,
+        max_rotation_deg: float = 45.0,
+        max_scale: float = 1.5,
+        recognizer: str = "hsmm",
     ) -> NoneModel | None:
         """The calibrated "none" hypothesis of a recognition mode, or ``None``."""
-        return self._none.get(self._mode(invariant, max_rotation_deg, max_scale))
+        return self._none.get(self._mode(invariant, max_rotation_deg, max_scale, recognizer))
 
 
 def _check_demos(demos: object) -> dict[str, list[np.ndarray]]:
