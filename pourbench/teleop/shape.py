@@ -10,7 +10,10 @@ demonstration's own Δd-sampled steps, matched against that mean (below), give t
 the step direction at each arc length of the mean path: ``σ(a)``, radians, per bin of
 ``2 Δd``, shrunk toward :data:`SIGMA_PRIOR` by :data:`PRIOR_STEPS` pseudo-steps (ten
 demonstrations give a few steps a bin), widened to the largest of the neighbouring bins
-(a corner may land a bin early or late) and at least :data:`SIGMA_FLOOR`.
+(a corner may land a bin early or late) and at least :data:`SIGMA_FLOOR`. The skill's own
+reproduction, when given, is a second template with the same spread at the same share of its
+length: an operator who follows the skill as the library reproduces it (rounded corners,
+a shorter path) is explained by it, one who writes like the demonstrations by the mean.
 
 **Matching a partial trajectory.** The operator's Δd-sampled points ``x_0 .. x_n`` give unit
 step directions ``u_i`` and cumulative arc lengths ``a_i``. For a scale ``s`` the operator's
@@ -23,7 +26,8 @@ step ``i`` is the mean path's chord from arc ``a_i / s`` to ``a_{i+1} / s`` (its
 so a step that lands a little off at a corner costs a bounded amount. The score is the largest
 ``sum_i log p(e_i)`` (nats) over scales on a log grid (ratio at most :data:`SCALE_STEP`
 between neighbours) within ``[1 / max_scale, max_scale]``, each at the rotation that maximises
-the ``σ⁻²``-weighted cosine sum (closed form), clipped to ``±max_rotation``. Both operator and
+the ``σ⁻²``-weighted cosine sum (closed form), clipped to ``±max_rotation``, and over the
+templates. Both operator and
 skill start where the stroke starts, so no search over where the operator is along the skill is
 needed; a translation changes no direction. Without invariance the scale is 1 and the
 rotation 0.
@@ -102,10 +106,11 @@ class ShapeMatch:
     Attributes:
         loglik: ``sum_i log p(e_i)`` over the trajectory's steps, nats.
         step_logliks: (n - 1,) the terms of that sum, nats.
-        scale: ``s``: the operator's size over the mean path's.
-        rotation: ``φ``, rad, counter-clockwise in the first two coordinates, from the mean
-            path's directions to the operator's.
-        fraction: the operator's arc length over ``s`` as a share of the mean path, in [0, 1].
+        scale: ``s``: the operator's size over the template's.
+        rotation: ``φ``, rad, counter-clockwise in the first two coordinates, from the
+            template's directions to the operator's.
+        fraction: the operator's arc length over ``s`` as a share of the template, in [0, 1].
+        template: which template matched best: 0 the mean path, 1 the skill's reproduction.
     """
 
     loglik: float
@@ -113,6 +118,27 @@ class ShapeMatch:
     scale: float
     rotation: float
     fraction: float
+    template: int = 0
+
+
+class _Template:
+    """A path resampled every ``grid`` metres of arc, starting at the origin."""
+
+    def __init__(self, points: np.ndarray, grid: float) -> None:
+        pts = points - points[0]
+        self.grid = grid
+        self.path = _by_arc(pts, np.arange(0.0, _arc(pts)[-1], grid))
+        if self.path.shape[0] < 2:
+            raise InvalidParameterError("a shape template is shorter than Δd / 6")
+        self.length = float(grid * (self.path.shape[0] - 1))
+
+    def chords(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Unit directions of the path's chords from arc ``lo`` to ``hi`` (same shape)."""
+        last = self.path.shape[0] - 1
+        i = np.clip(np.round(lo / self.grid).astype(int), 0, last - 1)
+        j = np.clip(np.round(hi / self.grid).astype(int), 1, last)
+        v = self.path[np.maximum(j, i + 1)] - self.path[i]
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
 class ShapeModel:
@@ -122,14 +148,24 @@ class ShapeModel:
         demos: raw demonstrations, each (n, D) metres with D >= 2, any sampling.
         sampled: the same demonstrations Δd-sampled (the steps an operator gives).
         delta_d: the Δd of ``sampled``, metres.
+        reproduction: the skill's own trajectory (its LQT reproduction), matched as a
+            second template with the same spread at the same share of its length, so that
+            an operator who follows the skill as the library reproduces it is recognised too
+            (a 20-state reproduction rounds the demonstrations' corners); ``None``: the
+            mean path alone.
         max_rotation: largest rotation when matching the demonstrations to learn the
             spread, rad.
         max_scale: largest scale factor for the same.
 
+    Attributes:
+        path: (m, D) the mean path, one point every Δd / 6 of arc, from the origin.
+        length: its arc length, metres.
+        sigma: the spread per bin of ``bin`` metres of the mean path's arc, rad.
+
     Raises:
         InvalidParameterError: no demonstrations, ``demos`` and ``sampled`` of different
-            lengths, a demonstration that is not a finite, moving (n >= 2, D >= 2) path, or
-            dimensions that differ.
+            lengths, a demonstration (or the reproduction) that is not a finite, moving
+            (n >= 2, D >= 2) path, or dimensions that differ.
     """
 
     def __init__(
@@ -138,6 +174,7 @@ class ShapeModel:
         sampled: Sequence[np.ndarray],
         delta_d: float,
         *,
+        reproduction: np.ndarray | None = None,
         max_rotation: float = np.pi / 4,
         max_scale: float = 1.5,
     ) -> None:
@@ -150,14 +187,13 @@ class ShapeModel:
         dim = raw[0].shape[1]
         steps = [_check_path(f"sampled demonstration {i}", d, dim) for i, d in enumerate(sampled)]
         self.dim = dim
-        self.grid = delta_d / _GRID_PER_DELTA
+        grid = delta_d / _GRID_PER_DELTA
         # each demonstration at the same fractions of its length, moved to start at 0
-        n = max(2, round(np.mean([_arc(d)[-1] for d in raw]) / self.grid))
+        n = max(2, round(np.mean([_arc(d)[-1] for d in raw]) / grid))
         means = [_by_arc(d, np.linspace(0.0, _arc(d)[-1], n)) for d in raw]
-        mean = np.mean([m - m[0] for m in means], axis=0)
-        self.path = _by_arc(mean, np.arange(0.0, _arc(mean)[-1], self.grid))
-        if self.path.shape[0] < 2:
-            raise InvalidParameterError("the demonstrations' mean path is shorter than Δd / 6")
+        mean = _Template(np.mean([m - m[0] for m in means], axis=0), grid)
+        self.templates = [mean]  # the mean path (its spread is learnt) before the rest
+        self.path, self.length = mean.path, mean.length
         self.bin = delta_d / _BINS_PER_DELTA
         bins = int(np.ceil(self.length / self.bin)) + 1
         self.sigma = np.full(bins, SIGMA_PRIOR)  # provisional spread, to match the demos
@@ -166,36 +202,21 @@ class ShapeModel:
             if pts.shape[0] < 2:
                 continue
             m = match_shape(pts, self, max_rotation=max_rotation, max_scale=max_scale)
-            e = self._angles(pts, m.scale, m.rotation)
-            a = _arc(pts)
-            b = self._bins(0.5 * (a[:-1] + a[1:]) / m.scale)
-            np.add.at(sq, b, e**2)
-            np.add.at(count, b, 1.0)
+            d = np.diff(pts, axis=0)
+            a = _arc(pts) / m.scale
+            v = mean.chords(a[:-1], a[1:])
+            e = _angles(d / np.linalg.norm(d, axis=1, keepdims=True), v, np.array(m.rotation))
+            np.add.at(sq, self._bins(0.5 * (a[:-1] + a[1:])), e**2)
+            np.add.at(count, self._bins(0.5 * (a[:-1] + a[1:])), 1.0)
         spread = np.sqrt((sq + PRIOR_STEPS * SIGMA_PRIOR**2) / (count + PRIOR_STEPS))
         self.sigma = np.maximum(maximum_filter1d(spread, 3, mode="nearest"), SIGMA_FLOOR)
-
-    @property
-    def length(self) -> float:
-        """Arc length of the mean path, metres."""
-        return float(self.grid * (self.path.shape[0] - 1))
+        if reproduction is not None:
+            rep = _check_path("reproduction", reproduction, dim)
+            self.templates.append(_Template(rep, grid))
 
     def _bins(self, arc: np.ndarray) -> np.ndarray:
+        """Spread bins of arc lengths along the mean path."""
         return np.clip((arc / self.bin).astype(int), 0, self.sigma.size - 1)
-
-    def _chords(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """Unit directions of the mean path's chords from arc ``lo`` to ``hi`` (same shape)."""
-        last = self.path.shape[0] - 1
-        i = np.clip(np.round(lo / self.grid).astype(int), 0, last - 1)
-        j = np.clip(np.round(hi / self.grid).astype(int), 1, last)
-        v = self.path[np.maximum(j, i + 1)] - self.path[i]
-        return v / np.linalg.norm(v, axis=-1, keepdims=True)
-
-    def _angles(self, pts: np.ndarray, scale: float, rotation: float) -> np.ndarray:
-        """Angles between the steps of ``pts`` and the rotated mean path's, rad."""
-        d = np.diff(pts, axis=0)
-        u = d / np.linalg.norm(d, axis=1, keepdims=True)
-        a = _arc(pts) / scale
-        return _angles(u, self._chords(a[:-1], a[1:]), np.array(rotation))
 
 
 def _planar(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -251,24 +272,31 @@ def match_shape(
     a = _arc(pts)
     lo, hi = a[:-1][moving], a[1:][moving]
     scales = _scales(max_scale)[:, None]
-    v = model._chords(lo / scales, hi / scales)  # (S, m, D)
-    sigma = model.sigma[model._bins(0.5 * (lo + hi) / scales)]  # (S, m)
-    dot, cross = _planar(u, v)
-    w = sigma**-2
-    rotation = np.clip(
-        np.arctan2(np.sum(w * cross, axis=1), np.sum(w * dot, axis=1)), -max_rotation, max_rotation
-    )
-    e = _angles(u, v, rotation)
-    inlier = np.log1p(-OUTLIER_SHARE) - 0.5 * (e / sigma) ** 2 - np.log(np.sqrt(2 * np.pi) * sigma)
-    terms = np.logaddexp(inlier, np.log(OUTLIER_SHARE / np.pi))
-    best = int(np.argmax(terms.sum(axis=1)))
-    steps = np.zeros(d.shape[0])
-    steps[moving] = terms[best]
-    s = float(scales[best, 0])
-    return ShapeMatch(
-        float(steps.sum()),
-        steps,
-        s,
-        float(rotation[best]),
-        float(min(a[-1] / s / model.length, 1.0)),
-    )
+    best: ShapeMatch | None = None
+    for k, template in enumerate(model.templates):
+        v = template.chords(lo / scales, hi / scales)  # (S, m, D)
+        # the spread at the same share of the mean path's length
+        share = model.length / template.length
+        sigma = model.sigma[model._bins(0.5 * (lo + hi) / scales * share)]  # (S, m)
+        dot, cross = _planar(u, v)
+        w = sigma**-2
+        rotation = np.clip(
+            np.arctan2(np.sum(w * cross, axis=1), np.sum(w * dot, axis=1)),
+            -max_rotation,
+            max_rotation,
+        )
+        e = _angles(u, v, rotation)
+        inlier = (
+            np.log1p(-OUTLIER_SHARE) - 0.5 * (e / sigma) ** 2 - np.log(np.sqrt(2 * np.pi) * sigma)
+        )
+        terms = np.logaddexp(inlier, np.log(OUTLIER_SHARE / np.pi))
+        i = int(np.argmax(terms.sum(axis=1)))
+        if best is not None and terms[i].sum() <= best.loglik:
+            continue
+        steps = np.zeros(d.shape[0])
+        steps[moving] = terms[i]
+        s = float(scales[i, 0])
+        fraction = float(min(a[-1] / s / template.length, 1.0))
+        best = ShapeMatch(float(steps.sum()), steps, s, float(rotation[i]), fraction, k)
+    assert best is not None
+    return best

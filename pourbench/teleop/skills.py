@@ -207,8 +207,9 @@ class SkillLibrary:
         D = origin.size
         x0 = np.concatenate([np.zeros(D), model.mu[0, D:]])
         rep = lqt_track(mu, sigma, r=self.lqt_r, x0=x0)
-        shape = ShapeModel(trajs, paths, self.delta_d) if D >= 2 else None
-        return Skill(label, model, rep.positions + origin, shape)
+        trajectory = rep.positions + origin
+        shape = ShapeModel(trajs, paths, self.delta_d, reproduction=trajectory) if D >= 2 else None
+        return Skill(label, model, trajectory, shape)
 
     def skill(self, label: str) -> Skill:
         """The skill named ``label``."""
