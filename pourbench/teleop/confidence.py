@@ -110,6 +110,13 @@ def _span(window: int | None, n: int) -> int:
     return n if window is None else min(window, n)
 
 
+def _head(before: np.ndarray, window: int | None) -> np.ndarray:
+    """The skills' log-likelihoods of what precedes the window: 0, the empty sequence's,
+    for the whole trajectory whatever ``before`` holds."""
+    before = np.asarray(before, dtype=float)
+    return np.zeros(before.shape) if window is None else before
+
+
 def _none_term(before: np.ndarray, m: int, tau: float) -> float:
     """log of ``mean_j exp(before_j) exp(m tau)``."""
     return float(logsumexp(before) - np.log(before.size) + m * tau)
@@ -146,7 +153,7 @@ def open_set_posterior(
                 f"(without the last model.window samples), got {before!r}"
             )
         m = _span(model.window, check_int("n", n, minimum=1))
-        z = np.append(ll, _none_term(np.asarray(before, dtype=float), m, model.tau))
+        z = np.append(ll, _none_term(_head(before, model.window), m, model.tau))
     if not np.any(np.isfinite(z)):
         return np.zeros(z.shape)
     return np.exp(z - logsumexp(z))
@@ -160,7 +167,7 @@ def _loglik_grid(
     total = np.zeros(taus.shape)
     for ex in examples:
         m = _span(window, ex.n)
-        before = ex.before[:, col]
+        before = _head(ex.before[:, col], window)
         own = ex.logliks[ex.target]
         if np.isfinite(own):  # else its probability is 0 whatever tau is: no information
             none = _none_term(before, m, 0.0) + m * taus
@@ -224,7 +231,7 @@ def fit_none_model(
         rates = []
         for ex in examples:
             with np.errstate(invalid="ignore"):  # -inf - -inf: a rejecting skill
-                r = (ex.logliks - ex.before[:, col]) / _span(w, ex.n)
+                r = (ex.logliks - _head(ex.before[:, col], w)) / _span(w, ex.n)
             rates.extend(r[np.isfinite(r)])
         if not rates:
             continue
