@@ -1,11 +1,13 @@
-"""``pourbench bench ablation``: three training runs that differ only in curiosity and the
-curriculum, their table and figure, and a finished run read back instead of retrained."""
+"""``pourbench bench ablation``: training runs that differ only in curiosity and the
+curriculum, and an off-policy learner, over seeds; their table and figure, and a finished
+run read back instead of retrained."""
 
 from __future__ import annotations
 
 import argparse
 import json
 
+import numpy as np
 import pytest
 
 from pourbench.bench import ablation
@@ -20,29 +22,60 @@ def test_the_variants_differ_only_in_curiosity_and_curriculum() -> None:
     }
 
 
-def test_a_row_holds_the_final_and_best_evaluation(tmp_path) -> None:
-    result = {
-        "timesteps": 1000,
-        "total_train_s": 1800.0,
-        "mean_abs_error_g": 12.0,
-        "random_mean_abs_error_g": 120.0,
+def test_the_off_policy_variant_is_sac_on_water_with_its_own_terms() -> None:
+    assert ablation.variant_names() == ["ppo", "ppo_icm", "ppo_icm_curriculum", "sac"]
+    assert ablation.settings("ppo_icm") == {
+        "algorithm": "recurrent_ppo",
+        "policy": "lstm",
+        "icm": True,
+        "curriculum": False,
     }
-    runs = {
-        "ppo": {
-            "eval/mean_abs_error_g": [(100.0, 40.0), (200.0, 9.0)],
-            "pour/error_g": [(64.0, 80.0), (900.0, 50.0), (950.0, 30.0), (1000.0, 40.0)],
+    sac = ablation.settings("sac")
+    assert sac["algorithm"] == "sac" and not sac["icm"] and not sac["curriculum"]
+    assert sac["shaping"] > 0 and sac["final_error_per_g"] > 0 and sac["utd"] > 0
+
+
+def _run(evals: list[tuple[float, float]], train_s: list[float], pours) -> dict:
+    return {
+        "eval/mean_abs_error_g": evals,
+        "eval/train_s": [(s, t) for (s, _), t in zip(evals, train_s, strict=True)],
+        "pour/error_g": pours,
+    }
+
+
+def test_a_row_holds_the_seeds_final_and_best_evaluations(tmp_path) -> None:
+    def result(steps: int, train_s: float, final_g: float) -> dict:
+        return {
+            "timesteps": steps,
+            "total_train_s": train_s,
+            "mean_abs_error_g": final_g,
+            "random_mean_abs_error_g": 120.0,
         }
+
+    results = {"ppo": [result(1000, 1800.0, 12.0), result(1002, 3600.0, 20.0)]}
+    runs = {
+        "ppo": [
+            _run([(100.0, 40.0), (200.0, 9.0)], [900.0, 1800.0], [(950.0, 30.0), (1000.0, 40.0)]),
+            _run([(102.0, 60.0), (204.0, 30.0)], [1800.0, 3600.0], [(64.0, 80.0), (990.0, 50.0)]),
+        ]
     }
-    (row,) = ablation.rows_of({"ppo": result}, runs)
+    (row,) = ablation.rows_of(results, runs)
     assert row == {
         "variant": "ppo",
-        "steps": 1000,
-        "train_h": 0.5,
-        "final_eval_error_g": 12.0,
+        "seeds": 2,
+        "steps": 1001,
+        "train_h": 0.75,
+        "final_eval_error_g": 16.0,
+        "final_eval_sd_g": 4.0,
         "best_eval_error_g": 9.0,
-        "final_training_error_g": 35.0,  # the points past 900 of 1000 steps
+        "final_training_error_g": 40.0,  # the points past 900 steps of each run
+        "first_step_at_10g": "200, never",
         "random_eval_error_g": 120.0,
     }
+    by_steps = ablation.band(runs["ppo"], "eval/mean_abs_error_g")
+    np.testing.assert_allclose(by_steps, [[101, 50, 40, 60], [202, 19.5, 9, 30]])
+    by_time = ablation.band(runs["ppo"], "eval/mean_abs_error_g", "eval/train_s")
+    np.testing.assert_allclose(by_time[:, 0], [1350.0, 2700.0])
     png = ablation.plot(runs, tmp_path / "a.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -50,7 +83,7 @@ def test_a_row_holds_the_final_and_best_evaluation(tmp_path) -> None:
 def test_a_finished_run_evaluated_on_other_liquids_is_refused_not_read_back(tmp_path) -> None:
     """A curriculum run evaluated on Table 6.2's six liquids (train's default) does not enter
     the water table; the error names the folder and nothing is overwritten."""
-    out = tmp_path / "full" / "ppo_icm_curriculum"
+    out = tmp_path / "full" / "ppo_icm_curriculum" / "seed0"
     out.mkdir(parents=True)
     args = {"curriculum": True, "liquid": "water", "out": str(out)}  # no eval_liquid: default
     written = json.dumps({"timesteps": 200_000, "args": args})
@@ -59,28 +92,32 @@ def test_a_finished_run_evaluated_on_other_liquids_is_refused_not_read_back(tmp_
         InvalidParameterError,
         match="evaluated on water, ink, oil, glycerine, honey, ketchup, not water",
     ):
-        ablation.train_variant("ppo_icm_curriculum", quick=False, runs=tmp_path)
+        ablation.train_variant("ppo_icm_curriculum", 0, quick=False, runs=tmp_path)
     assert (out / "result.json").read_text() == written
 
 
 @pytest.mark.slow
-def test_quick_ablation_trains_three_runs_and_reads_them_back(tmp_path, monkeypatch, capsys):
-    """The quick variant trains the three runs (256 steps each), writes the table and the
-    figure, and a second call reads the finished runs back instead of training again. With
-    --json, stdout is the one JSON object even while it trains (training logs to stderr)."""
+def test_quick_ablation_trains_every_variant_and_reads_them_back(tmp_path, monkeypatch, capsys):
+    """The quick variant trains each variant once (seed 0, 256 steps), writes the table and
+    the figure, and a second call reads the finished runs back instead of training again.
+    With --json, stdout is the one JSON object even while it trains (training logs to
+    stderr)."""
     monkeypatch.chdir(tmp_path)
     args = argparse.Namespace(quick=True, no_write=False, out=str(tmp_path / "lb"), json=True)
     assert ablation.run(args) == 0
     assert isinstance(json.loads(capsys.readouterr().out), dict)
     data = json.loads((tmp_path / "lb" / "ablation.json").read_text())
-    assert [r["variant"] for r in data["rows"]] == list(ablation.VARIANTS)
-    assert all(r["steps"] == 256 for r in data["rows"])
+    assert [r["variant"] for r in data["rows"]] == ablation.variant_names()
+    assert all(r["steps"] >= 256 and r["seeds"] == 1 for r in data["rows"])
     assert (tmp_path / "lb" / "ablation.png").is_file()
-    for name, flags in ablation.VARIANTS.items():
-        state = json.loads((tmp_path / "runs/ablation/quick" / name / "state.json").read_text())
-        assert {k: state["args"][k] for k in flags} == flags
+    for name in ablation.variant_names():
+        folder = tmp_path / "runs/ablation/quick" / name / "seed0"
+        state = json.loads((folder / "state.json").read_text())
+        chosen = {k: v for k, v in ablation.settings(name).items() if k != "num_envs"}
+        assert {k: state["args"][k] for k in chosen} == chosen
         assert state["args"]["seed"] == 0 and state["args"]["budget_steps"] == 256
         assert state["args"]["eval_liquid"] == "water"
+        assert ablation.curves(folder)["eval/train_s"]  # the wall time beside each evaluation
     capsys.readouterr()
     assert ablation.run(args) == 0
-    assert capsys.readouterr().err.count("read back") == 3
+    assert capsys.readouterr().err.count("read back") == len(ablation.variant_names())

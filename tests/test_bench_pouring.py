@@ -206,9 +206,9 @@ def test_the_table_points_to_the_thesis_reward_runs(tmp_path) -> None:
     assert "run `pourbench bench ablation`" in pouring.thesis_reward_line(tmp_path)
     rows = [
         {"variant": v, "steps": 200704, "final_eval_error_g": e, "random_eval_error_g": 86.26}
-        for v, e in (("ppo", 98.517), ("ppo_icm_curriculum", 86.263))
+        for v, e in (("ppo", 98.517), ("ppo_icm_curriculum", 86.263), ("sac", 80.0))
     ]
     (tmp_path / "ablation.json").write_text(json.dumps({"git_sha": "abc1234", "rows": rows}))
     line = pouring.thesis_reward_line(tmp_path)
-    assert "`ppo` 98.52 g, `ppo_icm_curriculum` 86.26 g" in line
+    assert "`ppo` 98.52 g, `ppo_icm_curriculum` 86.26 g on" in line  # not SAC's own reward
     assert "at `abc1234`, 200704 steps a run" in line and "errs by 86.26 g" in line

@@ -595,9 +595,14 @@ def train(
                     model.logger.record(f"eval/{name}/mean_abs_error_g", res.mean_abs_error_g)
             return EvalResult.join(*runs.values())
 
+        def spent_s() -> float:
+            return state["train_s"] + time.perf_counter() - t_start
+
         def evaluate_now() -> Any:
-            """Evaluate the model; keep it as ``best_model.zip`` when no evaluation of this
-            run (the clone's included) has had a smaller mean error."""
+            """Evaluate the model (its training wall time so far logged beside, as
+            ``eval/train_s``); keep it as ``best_model.zip`` when no evaluation of this run
+            (the clone's included) has had a smaller mean error."""
+            model.logger.record("eval/train_s", spent_s())
             result = evaluate_all(model_policy(model), log=True)
             best, error = state.get("best"), result.mean_abs_error_g
             if not math.isnan(error) and (best is None or error < best["eval_mean_abs_error_g"]):
@@ -619,9 +624,6 @@ def train(
                 model.logger.dump(0)  # its rows per liquid, at step 0
             if left_s is not None:
                 left_s -= time.perf_counter() - t_start
-
-        def spent_s() -> float:
-            return state["train_s"] + time.perf_counter() - t_start
 
         stamp = provenance()  # this session's, for state.json's history
         if command is not None:

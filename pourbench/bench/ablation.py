@@ -1,20 +1,31 @@
 """``pourbench bench ablation``: thesis Figures 6.7 and 6.8, what curiosity and the
-curriculum add to PPO.
+curriculum add to PPO, and how an off-policy learner compares, over seeds.
 
-Three runs of ``pourbench train`` with the same algorithm, budget, seed and evaluations:
+Four variants of ``pourbench train``, each with every seed of :data:`SEEDS`, the same step
+budget and the same evaluations:
 
-* ``ppo``: Algorithm 5's reward alone, water in every episode (``--no-icm --no-curriculum``);
+* ``ppo``: RecurrentPPO (LSTM), Algorithm 5's reward alone, water in every episode
+  (``--no-icm --no-curriculum``);
 * ``ppo_icm``: with the curiosity module's intrinsic reward (``--no-curriculum``);
-* ``ppo_icm_curriculum``: with both (the thesis' PourNet).
+* ``ppo_icm_curriculum``: with both (the thesis' PourNet);
+* ``sac``: SAC on water (:data:`OFF_POLICY`): the off-policy learner that got furthest from
+  scratch in docs/training.md (it approaches and tilts within 50k steps), with the
+  potential-based shaping term and the final-error term it was measured with, a quarter
+  gradient update per environment step and 16 worlds.
 
-Each is evaluated every tenth of its budget on the same water episodes (10 pours, seeds
+Each run is evaluated every tenth of its budget on the same water episodes (10 pours, seeds
 1000…, targets drawn by the env; the curriculum run too, whose own default would be Table
-6.2's six liquids), and the figure plots that evaluation's mean absolute pouring error, and
-the mean error of the training episodes that ended in each rollout, against environment
-steps. The training curve counts every ended episode: the thesis' running average (§6.5.1)
-counts only completed ones, so a policy that never completes an episode would have none.
-The runs live in ``runs/ablation/<variant>/``; a stopped ablation resumes
-each run from its last checkpoint, and a finished run is read back, not trained again.
+6.2's six liquids). The figure plots, per variant, that evaluation's mean absolute pouring
+error over the seeds (line: mean; band: the seeds' lowest to highest) against environment
+steps and against training wall time, and the mean error of the training episodes that ended
+in each rollout against steps. The training curve counts every ended episode: the thesis'
+running average (§6.5.1) counts only completed ones, so a policy that never completes an
+episode would have none. The table gives, per variant, the first evaluation step at which each
+seed's error reached :data:`TARGET_G`. The budget (:data:`BUDGET_STEPS`) makes the twelve
+runs about 8 hours of a 2-core machine (PPO about 100, SAC about 60 environment steps a
+second there). The runs live in ``runs/ablation/full/<variant>/seed<k>/``; a stopped
+ablation resumes each run from its last checkpoint, and a finished run is read back, not
+trained again. ``--quick``: seed 0 alone, 256 steps a run.
 """
 
 from __future__ import annotations
@@ -22,9 +33,12 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from pourbench.bench._report import git_sha, markdown_table, write_report
 from pourbench.errors import InvalidParameterError
@@ -34,21 +48,50 @@ VARIANTS: dict[str, dict[str, bool]] = {
     "ppo_icm": {"icm": True, "curriculum": False},
     "ppo_icm_curriculum": {"icm": True, "curriculum": True},
 }
+"""The thesis' ablation: RecurrentPPO (LSTM) runs that differ only in these flags."""
 ALGORITHM, POLICY = "recurrent_ppo", "lstm"
+OFF_POLICY: dict[str, dict[str, Any]] = {
+    "sac": {
+        "algorithm": "sac",
+        "policy": "mlp",
+        "icm": False,
+        "curriculum": False,
+        "shaping": 1.0,
+        "final_error_per_g": 0.05,
+        "utd": 0.25,
+        "num_envs": 16,
+    },
+}
+"""The off-policy learner beside them: its :class:`~pourbench.agents.train.TrainArgs`."""
+SEEDS = (0, 1, 2)
 BUDGET_STEPS = 200_000
+TARGET_G = 10.0
+"""The evaluation error whose first crossing the table reports, g."""
 EVAL_LIQUID = "water"
 QUICK = {"budget_steps": 256, "num_envs": 2, "n_steps": 32, "batch_size": 64}
 RUNS = Path("runs") / "ablation"
 
 
-def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
-    """Train (or resume, or read back) one variant; its ``result.json``."""
+def variant_names() -> list[str]:
+    """Every variant, the thesis' three first."""
+    return [*VARIANTS, *OFF_POLICY]
+
+
+def settings(name: str) -> dict[str, Any]:
+    """The :class:`~pourbench.agents.train.TrainArgs` fields that make variant ``name``."""
+    if name in VARIANTS:
+        return {"algorithm": ALGORITHM, "policy": POLICY, **VARIANTS[name]}
+    return dict(OFF_POLICY[name])
+
+
+def train_variant(name: str, seed: int, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
+    """Train (or resume, or read back) one variant with one seed; its ``result.json``."""
     from dataclasses import fields
 
     from pourbench.agents.train import TrainArgs, train
 
-    out = runs / ("quick" if quick else "full") / name
-    size = QUICK if quick else {"budget_steps": BUDGET_STEPS}
+    out = runs / ("quick" if quick else "full") / name / f"seed{seed}"
+    size = dict(QUICK) if quick else {"budget_steps": BUDGET_STEPS}
     steps = size["budget_steps"]
     result = out / "result.json"
     if result.is_file():
@@ -62,14 +105,18 @@ def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
                 "the variant anew"
             )
         if done["timesteps"] >= steps:
-            print(f"ablation: {name} read back from {result}", file=sys.stderr)
+            print(f"ablation: {name} seed {seed} read back from {result}", file=sys.stderr)
             return done
+    chosen = settings(name)
+    if chosen["algorithm"] == ALGORITHM:  # sb3-contrib's sequence is the rollout
+        size["seq_len"] = size.get("n_steps", 64)
+    if not quick and "num_envs" in chosen:
+        size["num_envs"] = chosen["num_envs"]
+    chosen.pop("num_envs", None)
     args = TrainArgs(
-        algorithm=ALGORITHM,
-        policy=POLICY,
-        **VARIANTS[name],
+        **chosen,
         **size,
-        seq_len=size.get("n_steps", 64),
+        seed=seed,
         eval_every_steps=max(1, steps // 10),
         eval_episodes=1 if quick else 10,
         eval_liquid=EVAL_LIQUID,
@@ -77,42 +124,76 @@ def train_variant(name: str, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
         out=str(out),
         resume=(out / "model.zip").is_file(),
     )
-    print(f"ablation: training {name} for {steps} steps into {out}", file=sys.stderr)
+    print(f"ablation: training {name} seed {seed} for {steps} steps into {out}", file=sys.stderr)
     with contextlib.redirect_stdout(sys.stderr):  # stdout holds the suite's JSON only
-        return train(args, command=f"pourbench bench ablation ({name})")
+        return train(args, command=f"pourbench bench ablation ({name}, seed {seed})")
 
 
-def curves(out: Path) -> dict[str, list[tuple[float, float]]]:
-    """A run's evaluation error and training episodes' error against steps."""
+Series = list[tuple[float, float]]
+
+KEYS = ("eval/mean_abs_error_g", "eval/train_s", "pour/error_g")
+"""What a run's curves hold: its evaluations' error and training wall time (s), and the
+training episodes' error, each against environment steps."""
+
+
+def curves(out: Path) -> dict[str, Series]:
+    """A run's :data:`KEYS` series from its ``progress.csv`` files."""
     from pourbench.agents.plots import read_progress
 
     series = read_progress(sorted(out.glob("logs/*/progress.csv")))
-    return {k: series.get(k, []) for k in ("eval/mean_abs_error_g", "pour/error_g")}
+    return {k: series.get(k, []) for k in KEYS}
 
 
-def plot(runs: dict[str, dict[str, list[tuple[float, float]]]], png: Path) -> Path:
-    """The variants' two curves side by side (matplotlib, no display needed)."""
+def band(runs: list[dict[str, Series]], key: str, x: str | None = None) -> np.ndarray:
+    """(k, 4) rows ``(x, mean, lowest, highest)`` of ``key`` over the seeds' runs, matched by
+    evaluation (or logging) index up to the shortest run; ``x`` is the mean step, or the
+    mean value of series ``x`` at the same index (an evaluation's wall time)."""
+    if not runs or any(not r[key] for r in runs):
+        return np.zeros((0, 4))
+    k = min(len(r[key]) for r in runs)
+    if x is not None:
+        k = min([k, *(len(r[x]) for r in runs)])
+    ys = np.array([[v for _, v in r[key][:k]] for r in runs])
+    if x is None:
+        xs = np.array([[s for s, _ in r[key][:k]] for r in runs])
+    else:
+        xs = np.array([[v for _, v in r[x][:k]] for r in runs])
+    return np.column_stack([xs.mean(0), ys.mean(0), ys.min(0), ys.max(0)])
+
+
+def first_reaching(series: Series, threshold: float = TARGET_G) -> float:
+    """The first step whose value is at most ``threshold`` (``inf``: never)."""
+    return next((s for s, v in series if v <= threshold), math.inf)
+
+
+def plot(runs: dict[str, list[dict[str, Series]]], png: Path) -> Path:
+    """Per variant, the evaluation error over the seeds against steps and against wall time,
+    and the training episodes' error against steps (matplotlib, no display needed)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
-    titles = {
-        "eval/mean_abs_error_g": "evaluation: mean absolute error on water, g",
-        "pour/error_g": "training: mean error of the episodes ended per rollout, g",
-    }
-    for ax, (key, title) in zip(axes, titles.items(), strict=True):
-        for name, series in runs.items():
-            if series[key]:
-                xs, ys = zip(*series[key], strict=True)
-                ax.plot(xs, ys, marker=".", label=name)
-        ax.set_title(title, fontsize=9)
-        ax.set_xlabel("environment steps", fontsize=8)
+    fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
+    panels = (
+        ("eval/mean_abs_error_g", None, "evaluation on water, g", "environment steps", 1.0),
+        ("eval/mean_abs_error_g", "eval/train_s", "evaluation on water, g", "training, h", 3600),
+        ("pour/error_g", None, "training episodes ended per rollout, g", "environment steps", 1),
+    )
+    for ax, (key, x, title, xlabel, unit) in zip(axes, panels, strict=True):
+        for name, seeds in runs.items():
+            b = band(seeds, key, x)
+            if len(b):
+                (line,) = ax.plot(b[:, 0] / unit, b[:, 1], marker=".", label=name)
+                ax.fill_between(b[:, 0] / unit, b[:, 2], b[:, 3], color=line.get_color(), alpha=0.2)
+        ax.set_title(f"{title}: mean, band over seeds", fontsize=9)
+        ax.set_xlabel(xlabel, fontsize=8)
         ax.grid(alpha=0.3)
         if ax.lines:
             ax.legend(fontsize=8)
-    fig.suptitle("PPO, + curiosity, + curriculum (thesis Figures 6.7 and 6.8)", fontsize=10)
+    fig.suptitle(
+        "PPO, + curiosity, + curriculum (thesis Figures 6.7 and 6.8), and SAC", fontsize=10
+    )
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
     partial = png.with_name(png.stem + ".partial.png")
@@ -122,24 +203,38 @@ def plot(runs: dict[str, dict[str, list[tuple[float, float]]]], png: Path) -> Pa
     return png
 
 
-def rows_of(results: dict[str, dict], runs: dict[str, dict]) -> list[dict[str, Any]]:
-    """One row per variant: steps, wall time, final and best evaluation error, the last
-    training episodes' mean error over the last tenth of the steps, and a random policy's
-    error on the same episodes."""
+def rows_of(
+    results: dict[str, list[dict[str, Any]]], runs: dict[str, list[dict[str, Series]]]
+) -> list[dict[str, Any]]:
+    """One row per variant over its seeds: steps and wall time a run, the final evaluation's
+    mean and standard deviation, the best evaluation of any seed, the training episodes'
+    mean error over the last tenth of the steps, the first step at which each seed's
+    evaluation reached :data:`TARGET_G`, and a random policy's error on the same episodes."""
     rows = []
-    for name, r in results.items():
-        evals = [e for _, e in runs[name]["eval/mean_abs_error_g"]]
-        training = runs[name]["pour/error_g"]
-        late = [e for s, e in training if s > 0.9 * r["timesteps"]]
+    for name, seeds in results.items():
+        finals = [r["mean_abs_error_g"] for r in seeds]
+        evals = [e for run in runs[name] for _, e in run["eval/mean_abs_error_g"]]
+        late = [
+            e
+            for r, run in zip(seeds, runs[name], strict=True)
+            for s, e in run["pour/error_g"]
+            if s > 0.9 * r["timesteps"]
+        ]
+        reached = [first_reaching(run["eval/mean_abs_error_g"]) for run in runs[name]]
         rows.append(
             {
                 "variant": name,
-                "steps": r["timesteps"],
-                "train_h": r["total_train_s"] / 3600.0,
-                "final_eval_error_g": r["mean_abs_error_g"],
-                "best_eval_error_g": min([*evals, r["mean_abs_error_g"]]),
-                "final_training_error_g": sum(late) / len(late) if late else None,
-                "random_eval_error_g": r["random_mean_abs_error_g"],
+                "seeds": len(seeds),
+                "steps": round(float(np.mean([r["timesteps"] for r in seeds]))),
+                "train_h": float(np.mean([r["total_train_s"] for r in seeds])) / 3600.0,
+                "final_eval_error_g": float(np.mean(finals)),
+                "final_eval_sd_g": float(np.std(finals)),
+                "best_eval_error_g": min([*evals, *finals]),
+                "final_training_error_g": float(np.mean(late)) if late else None,
+                f"first_step_at_{TARGET_G:g}g": ", ".join(
+                    "never" if math.isinf(s) else f"{s:.0f}" for s in reached
+                ),
+                "random_eval_error_g": seeds[0]["random_mean_abs_error_g"],
             }
         )
     return rows
@@ -147,20 +242,29 @@ def rows_of(results: dict[str, dict], runs: dict[str, dict]) -> list[dict[str, A
 
 def run(args: argparse.Namespace) -> int:
     sha = git_sha()
-    results = {name: train_variant(name, args.quick) for name in VARIANTS}
-    runs = {name: curves(Path(r["args"]["out"])) for name, r in results.items()}
+    seeds = SEEDS[:1] if args.quick else SEEDS
+    results = {
+        name: [train_variant(name, k, args.quick) for k in seeds] for name in variant_names()
+    }
+    runs = {name: [curves(Path(r["args"]["out"])) for r in rs] for name, rs in results.items()}
     rows = rows_of(results, runs)
     out = Path(args.out)
+    sac = OFF_POLICY["sac"]
     body = "\n".join(
         [
-            f"Three `pourbench train` runs of {ALGORITHM} ({POLICY}), seed 0, the same budget "
-            "and evaluations: `ppo` (Algorithm 5's reward alone, water in every episode), "
-            "`ppo_icm` (with the curiosity module), `ppo_icm_curriculum` (with the liquid "
-            "curriculum too: the thesis' PourNet). `final_eval_error_g` / `best_eval_error_g`: "
-            "the evaluation on water (10 pours, seeds 1000…) at the end and at its best; "
-            "`final_training_error_g`: the mean error of the training episodes that ended in "
-            "the last tenth of the steps (every ended episode, timed out ones too); "
-            "`random_eval_error_g`: a random policy on the same episodes. "
+            f"`pourbench train` runs of {ALGORITHM} ({POLICY}) with seeds "
+            f"{', '.join(map(str, seeds))}, the same budget and evaluations: `ppo` (Algorithm "
+            "5's reward alone, water in every episode), `ppo_icm` (with the curiosity "
+            "module), `ppo_icm_curriculum` (with the liquid curriculum too: the thesis' "
+            f"PourNet); and `sac` (SAC on water, shaping {sac['shaping']:g}, "
+            f"final-error term {sac['final_error_per_g']:g} a gram, {sac['utd']:g} updates "
+            f"a step, {sac['num_envs']} worlds). `final_eval_error_g` ± `final_eval_sd_g`: "
+            "the evaluation on water (10 pours, seeds 1000…) at the end, mean and standard "
+            "deviation over the seeds; `best_eval_error_g`: the best evaluation of any seed; "
+            "`final_training_error_g`: the mean error of the training episodes that ended "
+            "in the last tenth of the steps (every ended episode, timed out ones too); "
+            f"`first_step_at_{TARGET_G:g}g`: per seed, the first evaluation at or under "
+            f"{TARGET_G:g} g; `random_eval_error_g`: a random policy on the same episodes. "
             "Each run's sessions (command, git SHA, machine) are in its `state.json`.",
             "",
             markdown_table(rows),
@@ -174,9 +278,14 @@ def run(args: argparse.Namespace) -> int:
             "ablation",
             rows,
             out=str(out),
-            title="Curiosity and curriculum: thesis Figures 6.7 and 6.8",
+            title="Curiosity, curriculum and an off-policy learner: thesis Figures 6.7 and 6.8",
             body_md=body,
-            extra={"curves": {n: {k: list(v) for k, v in c.items()} for n, c in runs.items()}},
+            extra={
+                "curves": {
+                    name: [{k: list(v) for k, v in c.items()} for c in cs]
+                    for name, cs in runs.items()
+                }
+            },
             git_sha_at_start=sha,
         )
     if args.json:

@@ -124,8 +124,10 @@ def thesis_reward_line(out: Path) -> str:
             "The thesis' reward alone (Algorithm 5, no final-error term, no residual): run "
             "`pourbench bench ablation` for its rows."
         )
+    from pourbench.bench.ablation import VARIANTS
+
     report = json.loads(path.read_text())
-    rows = report["rows"]
+    rows = [r for r in report["rows"] if r["variant"] in VARIANTS]  # not the off-policy one
     scores = ", ".join(f"`{r['variant']}` {r['final_eval_error_g']:.2f} g" for r in rows)
     low, high = min(r["steps"] for r in rows), max(r["steps"] for r in rows)
     steps = f"{low}" if low == high else f"{low}–{high}"

@@ -272,8 +272,9 @@ class SkillLibrary:
             limits = {"max_rotation": np.radians(max_rotation_deg), "max_scale": max_scale}
         else:
             limits = {}
-        shapes = {k: sk.shape for k, sk in self.skills.items()}
-        matches = {k: match_shape(pts, m, **limits) for k, m in shapes.items() if m is not None}
+        # every skill has a shape here: _mode refused the shape recognizer otherwise
+        shapes = {k: sk.shape for k, sk in self.skills.items() if sk.shape is not None}
+        matches = {k: match_shape(pts, m, **limits) for k, m in shapes.items()}
         before = np.zeros((len(names), len(windows)))
         for col, w in enumerate(windows):
             if w is not None and pts.shape[0] - w >= 2:
