@@ -89,8 +89,10 @@ class BudgetCallback(BaseCallback):
 
 class EvalCallback(BaseCallback):
     """Every ``every_steps`` environment steps, ``evaluate(policy())`` (a callable that
-    returns an :class:`~pourbench.agents.evaluate.EvalResult`, with its own progress bar) and
-    record its mean absolute error and success rate."""
+    returns an :class:`~pourbench.agents.evaluate.EvalResult`, with its own progress bar),
+    record its mean absolute error and success rate, and write them out at once with the
+    step count: an off-policy learner writes its log only every few episodes, and a short
+    run's evaluations would otherwise never reach ``progress.csv``."""
 
     def __init__(self, every_steps: int, evaluate: Callable[[], Any]) -> None:
         super().__init__()
@@ -106,5 +108,7 @@ class EvalCallback(BaseCallback):
             result = self.evaluate()
             self.logger.record("eval/mean_abs_error_g", result.mean_abs_error_g)
             self.logger.record("eval/success_rate", result.success_rate)
+            self.logger.record("time/total_timesteps", self.num_timesteps)
+            self.logger.dump(self.num_timesteps)
             print(f"evaluation at {self.num_timesteps} steps: {result.summary()}")
         return True
