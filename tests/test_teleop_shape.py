@@ -99,6 +99,9 @@ def test_match_shape_refuses_bad_input(s_shape) -> None:
         match_shape(pts, s_shape, max_scale=0.5)
     with pytest.raises(InvalidParameterError, match="as many"):
         ShapeModel([pts], [], DD)
+    for delta_d in (0.0, -DD, np.nan):
+        with pytest.raises(InvalidParameterError, match="delta_d"):
+            ShapeModel([pts], [pts], delta_d)
 
 
 @pytest.fixture(scope="module")

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import maximum_filter1d
 
-from pourbench.errors import InvalidParameterError
+from pourbench.errors import InvalidParameterError, check_positive
 
 __all__ = [
     "OUTLIER_SHARE",
@@ -160,12 +160,14 @@ class ShapeModel:
     Attributes:
         path: (m, D) the mean path, one point every Δd / 6 of arc, from the origin.
         length: its arc length, metres.
-        sigma: the spread per bin of ``bin`` metres of the mean path's arc, rad.
+        sigma: the spread per bin of ``bin`` metres (2 Δd) of the mean path's arc, rad.
+        templates: what a trajectory is matched against: the mean path, then the
+            reproduction when given.
 
     Raises:
         InvalidParameterError: no demonstrations, ``demos`` and ``sampled`` of different
             lengths, a demonstration (or the reproduction) that is not a finite, moving
-            (n >= 2, D >= 2) path, or dimensions that differ.
+            (n >= 2, D >= 2) path, dimensions that differ, or ``delta_d`` not finite and > 0.
     """
 
     def __init__(
@@ -187,7 +189,7 @@ class ShapeModel:
         dim = raw[0].shape[1]
         steps = [_check_path(f"sampled demonstration {i}", d, dim) for i, d in enumerate(sampled)]
         self.dim = dim
-        grid = delta_d / _GRID_PER_DELTA
+        grid = check_positive("delta_d", delta_d) / _GRID_PER_DELTA
         # each demonstration at the same fractions of its length, moved to start at 0
         n = max(2, round(np.mean([_arc(d)[-1] for d in raw]) / grid))
         means = [_by_arc(d, np.linspace(0.0, _arc(d)[-1], n)) for d in raw]
@@ -199,15 +201,16 @@ class ShapeModel:
         self.sigma = np.full(bins, SIGMA_PRIOR)  # provisional spread, to match the demos
         sq, count = np.zeros(bins), np.zeros(bins)
         for pts in steps:
-            if pts.shape[0] < 2:
-                continue
             m = match_shape(pts, self, max_rotation=max_rotation, max_scale=max_scale)
             d = np.diff(pts, axis=0)
+            length = np.linalg.norm(d, axis=1)
+            moving = length > 0.0
             a = _arc(pts) / m.scale
-            v = mean.chords(a[:-1], a[1:])
-            e = _angles(d / np.linalg.norm(d, axis=1, keepdims=True), v, np.array(m.rotation))
-            np.add.at(sq, self._bins(0.5 * (a[:-1] + a[1:])), e**2)
-            np.add.at(count, self._bins(0.5 * (a[:-1] + a[1:])), 1.0)
+            lo, hi = a[:-1][moving], a[1:][moving]
+            u = d[moving] / length[moving, None]
+            e = _angles(u, mean.chords(lo, hi), np.array(m.rotation))
+            np.add.at(sq, self._bins(0.5 * (lo + hi)), e**2)
+            np.add.at(count, self._bins(0.5 * (lo + hi)), 1.0)
         spread = np.sqrt((sq + PRIOR_STEPS * SIGMA_PRIOR**2) / (count + PRIOR_STEPS))
         self.sigma = np.maximum(maximum_filter1d(spread, 3, mode="nearest"), SIGMA_FLOOR)
         if reproduction is not None:
