@@ -6,9 +6,8 @@ template under a bounded rotation and scale.
 
 **Model of a skill.** Its demonstrations, each parametrised by arc length and moved to start
 at the origin, are averaged into a mean path (:attr:`ShapeModel.path`, metres). Each
-demonstration's own Δd-sampled steps, matched (below) against the mean of the other
-demonstrations (leave-one-out: the spread of a demonstration the mean has not seen), give
-the spread of the step direction at each arc length of the mean path: ``σ(a)``, radians, per bin of
+demonstration's own Δd-sampled steps, matched against that mean (below), give the spread of
+the step direction at each arc length of the mean path: ``σ(a)``, radians, per bin of
 ``2 Δd``, shrunk toward :data:`SIGMA_PRIOR` by :data:`PRIOR_STEPS` pseudo-steps (ten
 demonstrations give a few steps a bin), widened to the largest of the neighbouring bins
 (a corner may land a bin early or late) and at least :data:`SIGMA_FLOOR`. The skill's own
@@ -193,21 +192,15 @@ class ShapeModel:
         grid = check_positive("delta_d", delta_d) / _GRID_PER_DELTA
         # each demonstration at the same fractions of its length, moved to start at 0
         n = max(2, round(np.mean([_arc(d)[-1] for d in raw]) / grid))
-        starts = np.array(
-            [m - m[0] for m in (_by_arc(d, np.linspace(0.0, _arc(d)[-1], n)) for d in raw)]
-        )
-        mean = _Template(starts.mean(axis=0), grid)
+        means = [_by_arc(d, np.linspace(0.0, _arc(d)[-1], n)) for d in raw]
+        mean = _Template(np.mean([m - m[0] for m in means], axis=0), grid)
+        self.templates = [mean]  # the mean path (its spread is learnt) before the rest
         self.path, self.length = mean.path, mean.length
         self.bin = delta_d / _BINS_PER_DELTA
         bins = int(np.ceil(self.length / self.bin)) + 1
         self.sigma = np.full(bins, SIGMA_PRIOR)  # provisional spread, to match the demos
         sq, count = np.zeros(bins), np.zeros(bins)
-        for k, pts in enumerate(steps):
-            # each demonstration against the mean of the others (leave-one-out), so that the
-            # spread is the one of a demonstration the mean path has not seen
-            others = np.delete(starts, k, axis=0) if len(starts) > 1 else starts
-            ref = _Template(others.mean(axis=0), grid)
-            self.templates, self.length = [ref], ref.length
+        for pts in steps:
             m = match_shape(pts, self, max_rotation=max_rotation, max_scale=max_scale)
             d = np.diff(pts, axis=0)
             length = np.linalg.norm(d, axis=1)
@@ -215,11 +208,9 @@ class ShapeModel:
             a = _arc(pts) / m.scale
             lo, hi = a[:-1][moving], a[1:][moving]
             u = d[moving] / length[moving, None]
-            e = _angles(u, ref.chords(lo, hi), np.array(m.rotation))
+            e = _angles(u, mean.chords(lo, hi), np.array(m.rotation))
             np.add.at(sq, self._bins(0.5 * (lo + hi)), e**2)
             np.add.at(count, self._bins(0.5 * (lo + hi)), 1.0)
-        self.templates = [mean]  # the mean path (its spread is learnt) before the rest
-        self.length = mean.length
         spread = np.sqrt((sq + PRIOR_STEPS * SIGMA_PRIOR**2) / (count + PRIOR_STEPS))
         self.sigma = np.maximum(maximum_filter1d(spread, 3, mode="nearest"), SIGMA_FLOOR)
         if reproduction is not None:
