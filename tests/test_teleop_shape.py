@@ -171,6 +171,9 @@ def test_recognizers_are_checked_at_the_boundary(library) -> None:
             library.recognize(pts, recognizer=bad)
         with pytest.raises(InvalidParameterError, match="recognizer must be one of"):
             SkillCPDConfig(recognizer=bad)
+    for bad in (1, "yes", None):
+        with pytest.raises(InvalidParameterError, match="invariant must be True or False"):
+            library.recognize(pts, invariant=bad, recognizer="shape")
     one_d = SkillLibrary(DD).fit({L: [d.points[:, :1] for d in letter_demos(L, 3)] for L in "IL"})
     with pytest.raises(InvalidParameterError, match="at least two dimensions"):
         one_d.recognize(pts[:, :1], recognizer="shape")

@@ -21,11 +21,11 @@ steps and against training wall time, and the mean error of the training episode
 in each rollout against steps. The training curve counts every ended episode: the thesis'
 running average (§6.5.1) counts only completed ones, so a policy that never completes an
 episode would have none. The table gives, per variant, the first evaluation step at which each
-seed's error reached :data:`TARGET_G`. The budget (:data:`BUDGET_STEPS`) makes the twelve
-runs about 8 hours of a 2-core machine (PPO about 100, SAC about 60 environment steps a
-second there). The runs live in ``runs/ablation/full/<variant>/seed<k>/``; a stopped
-ablation resumes each run from its last checkpoint, and a finished run is read back, not
-trained again. ``--quick``: seed 0 alone, 256 steps a run.
+seed's error reached :data:`TARGET_G`. The budget (:data:`BUDGET_STEPS`) is chosen so that
+the twelve runs take about 8 hours of a 2-core machine (docs/training.md). The runs live in
+``runs/ablation/full/<variant>/seed<k>/``; a stopped ablation resumes each run from its last
+checkpoint, and a finished run is read back, not trained again. ``--quick``: seed 0 alone,
+256 steps a run.
 """
 
 from __future__ import annotations
@@ -107,15 +107,11 @@ def train_variant(name: str, seed: int, quick: bool, runs: Path = RUNS) -> dict[
         if done["timesteps"] >= steps:
             print(f"ablation: {name} seed {seed} read back from {result}", file=sys.stderr)
             return done
-    chosen = settings(name)
+    chosen = {**settings(name), **size}  # the quick run's size wins over a variant's worlds
     if chosen["algorithm"] == ALGORITHM:  # sb3-contrib's sequence is the rollout
-        size["seq_len"] = size.get("n_steps", 64)
-    if not quick and "num_envs" in chosen:
-        size["num_envs"] = chosen["num_envs"]
-    chosen.pop("num_envs", None)
+        chosen["seq_len"] = chosen.get("n_steps", 64)
     args = TrainArgs(
         **chosen,
-        **size,
         seed=seed,
         eval_every_steps=max(1, steps // 10),
         eval_episodes=1 if quick else 10,

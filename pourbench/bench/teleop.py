@@ -14,8 +14,8 @@ thesis used 5. The simulated operator is one of two:
 Recognition uses :meth:`~pourbench.teleop.skills.SkillLibrary.recognize` with the shape
 recognizer (``RECOGNIZER``, our addition: the operator's step directions against each skill's
 mean path, :mod:`pourbench.teleop.shape`; the thesis scores with the HSMMs) and
-``invariant=True`` (rotations up to 45° and scales up to 1.5 searched; without it, ±30°
-rotated letters are not recognised). Its confidence is calibrated
+``invariant=True`` (rotations up to 45° and scales up to 1.5 searched, so that the rotated
+and scaled operators below are recognised). Its confidence is calibrated
 (:meth:`~pourbench.teleop.skills.SkillLibrary.calibrate`) on held-out demonstrations that
 are never operators: per letter demonstration 20, copied under the identical, ±30° and x1.3
 / x1/1.3 variations (a translation changes no direction); per feeding target demonstrations

@@ -83,6 +83,17 @@ def _by_arc(points: np.ndarray, at: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(at, a, points[:, d]) for d in range(points.shape[1])], axis=1)
 
 
+def _unit_steps(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(moving, u, lo, hi)`` of a path's steps: which steps move (a repeated point has no
+    direction), the moving steps' unit directions, and the arc lengths they start and end
+    at, metres."""
+    d = np.diff(points, axis=0)
+    length = np.linalg.norm(d, axis=1)
+    moving = length > 0.0
+    a = _arc(points)
+    return moving, d[moving] / length[moving, None], a[:-1][moving], a[1:][moving]
+
+
 def _check_path(name: str, points: object, dim: int | None = None) -> np.ndarray:
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[0] < 2 or pts.shape[1] < 2:
@@ -202,15 +213,12 @@ class ShapeModel:
         sq, count = np.zeros(bins), np.zeros(bins)
         for pts in steps:
             m = match_shape(pts, self, max_rotation=max_rotation, max_scale=max_scale)
-            d = np.diff(pts, axis=0)
-            length = np.linalg.norm(d, axis=1)
-            moving = length > 0.0
-            a = _arc(pts) / m.scale
-            lo, hi = a[:-1][moving], a[1:][moving]
-            u = d[moving] / length[moving, None]
+            _, u, lo, hi = _unit_steps(pts)
+            lo, hi = lo / m.scale, hi / m.scale  # along the mean path
             e = _angles(u, mean.chords(lo, hi), np.array(m.rotation))
-            np.add.at(sq, self._bins(0.5 * (lo + hi)), e**2)
-            np.add.at(count, self._bins(0.5 * (lo + hi)), 1.0)
+            at = self._bins(0.5 * (lo + hi))
+            np.add.at(sq, at, e**2)
+            np.add.at(count, at, 1.0)
         spread = np.sqrt((sq + PRIOR_STEPS * SIGMA_PRIOR**2) / (count + PRIOR_STEPS))
         self.sigma = np.maximum(maximum_filter1d(spread, 3, mode="nearest"), SIGMA_FLOOR)
         if reproduction is not None:
@@ -268,12 +276,7 @@ def match_shape(
         raise InvalidParameterError(f"max_rotation must be finite and >= 0, got {max_rotation!r}")
     if not (np.isfinite(max_scale) and max_scale >= 1.0):
         raise InvalidParameterError(f"max_scale must be finite and >= 1, got {max_scale!r}")
-    d = np.diff(pts, axis=0)
-    length = np.linalg.norm(d, axis=1)
-    moving = length > 0.0  # a repeated point has no direction: it scores nothing
-    u = d[moving] / length[moving, None]
-    a = _arc(pts)
-    lo, hi = a[:-1][moving], a[1:][moving]
+    moving, u, lo, hi = _unit_steps(pts)  # a repeated point scores nothing
     scales = _scales(max_scale)[:, None]
     best: ShapeMatch | None = None
     for k, template in enumerate(model.templates):
@@ -296,10 +299,10 @@ def match_shape(
         i = int(np.argmax(terms.sum(axis=1)))
         if best is not None and terms[i].sum() <= best.loglik:
             continue
-        steps = np.zeros(d.shape[0])
+        steps = np.zeros(moving.size)
         steps[moving] = terms[i]
         s = float(scales[i, 0])
-        fraction = float(min(a[-1] / s / template.length, 1.0))
+        fraction = float(min(_arc(pts)[-1] / s / template.length, 1.0))
         best = ShapeMatch(float(steps.sum()), steps, s, float(rotation[i]), fraction, k)
     assert best is not None
     return best
