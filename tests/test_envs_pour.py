@@ -754,6 +754,45 @@ def test_the_denser_reward_charges_the_final_error_at_the_step_limit() -> None:
     assert rewards[1] == pytest.approx(-1.0 / 3.0 - 0.02 * 50.0)
 
 
+def test_the_progress_term_pays_each_gram_of_the_final_error_as_the_scale_moves() -> None:
+    """With ``RewardConfig.progress_per_g`` = c each step's reward gains c (error before −
+    error after) and nothing else, the liquid moving as without it: over an episode that
+    reaches the target and pours past it, the steps that bring the error down pay, those
+    that pour past the target charge, and the whole adds c (target − final error), so
+    nothing of it is left for the episode's end."""
+    from pourbench.envs.pour_v0 import PourEnv
+    from pourbench.envs.reward import RewardConfig
+
+    c, steps = 0.05, 70
+    start = {"start": (-0.25, 0.0, 0.12), "target_g": 60.0}
+    runs = {}
+    for per_g in (0.0, c):
+        env = PourEnv(liquid="water", max_steps=steps, reward=RewardConfig(progress_per_g=per_g))
+        env.reset(seed=0, options=start)
+        rewards, errors = [], [start["target_g"]]
+        for t in range(steps):
+            _, r, term, trunc, info = env.step(np.array([1.0 if t < 55 else -1.0, 1.0]))
+            rewards.append(r)
+            errors.append(info["error_g"])
+            if term or trunc:
+                break
+        runs[per_g] = (np.array(rewards), np.array(errors))
+        env.close()
+    (plain, errors0), (paid, errors) = runs[0.0], runs[c]
+    np.testing.assert_array_equal(errors, errors0)  # the same pour
+    added = paid - plain
+    np.testing.assert_allclose(added, c * (errors[:-1] - errors[1:]), atol=1e-12)
+    assert errors.min() < 5.0 and errors[-1] > 20.0  # reached the target, then poured past it
+    assert np.sum(added) == pytest.approx(c * (start["target_g"] - errors[-1]))
+    assert added[-1] == pytest.approx(c * (errors[-2] - errors[-1]), abs=1e-12)
+    with pytest.raises(InvalidParameterError, match="progress_per_g must be >= 0"):
+        RewardConfig(progress_per_g=-0.01)
+    from pourbench.envs.robot_pour import RobotPourEnv
+
+    with pytest.raises(InvalidParameterError, match=r"PourRobot-v0 .* no progress_per_g term"):
+        RobotPourEnv(reward=RewardConfig(progress_per_g=0.05))
+
+
 def test_the_shaping_term_is_potential_based() -> None:
     """With ``RewardConfig.shaping`` the reward gains γΦ(s′) − Φ(s) and nothing else: over a
     whole episode that ends at the step limit (a terminal state for the learners) the

@@ -141,6 +141,32 @@ def test_the_denser_option_counts_every_gram_of_the_final_error() -> None:
         RewardConfig(final_error_per_g=-0.1)
 
 
+def test_the_progress_option_pays_the_error_change_of_the_step() -> None:
+    def reward(before: float, after: float, **flags: bool) -> float:
+        kw = {"pouring": False, "collided": False, "finished": False, **flags}
+        return extrinsic_reward(
+            *(np.array([kw[k]]) for k in ("pouring", "collided", "finished")),
+            np.array([after]),
+            np.array([15.0]),  # running average error, g
+            200,
+            RewardConfig(progress_per_g=0.05),
+            np.array([False]),
+            previous_error_g=np.array([before]),
+        )[0]
+
+    assert reward(80.0, 70.0, pouring=True) == pytest.approx(-1 / 200 + 0.5)  # 10 g closer
+    assert reward(5.0, 25.0) == pytest.approx(-1.0)  # 20 g past the target
+    assert reward(4.0, 3.0, finished=True) == pytest.approx(2.0 + 0.05)  # both bonuses too
+    with pytest.raises(ValueError, match="needs the error before the step"):
+        extrinsic_reward(
+            *(np.array([False]) for _ in range(3)),
+            np.array([1.0]),
+            np.array([1.0]),
+            200,
+            RewardConfig(progress_per_g=0.05),
+        )
+
+
 def test_error_history_window() -> None:
     h = ErrorHistory(2, window=3)
     np.testing.assert_array_equal(h.average(), [0.0, 0.0])

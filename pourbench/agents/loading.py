@@ -8,7 +8,7 @@ is read from the file).
 ``new_episode`` is True on an episode's first step. A recurrent policy keeps its LSTM state
 from call to call and starts afresh when ``new_episode`` is True. Saved models act
 deterministically; a residual model (``pourbench train --residual``) acts on top of its own
-PD baseline.
+PD baseline, a directed-tilt model (``--directed-tilt``) through its action map.
 """
 
 from __future__ import annotations
@@ -114,10 +114,11 @@ def load_model(path: str | Path, env: Any = None, device: str = "cpu") -> Any:
 def model_policy(model: Any) -> Policy:
     """An SB3 model in memory as ``f(obs, new_episode)`` acting deterministically; a
     recurrent model's state is kept between calls and cleared when ``new_episode``; a
-    residual model (:mod:`pourbench.agents.residual`) acts on top of its PD baseline."""
+    residual model (:mod:`pourbench.agents.residual`) acts on top of its PD baseline, and a
+    directed-tilt model (:mod:`pourbench.agents.directed`) through its map."""
     from sb3_contrib import RecurrentPPO
 
-    from pourbench.agents.residual import ATTRIBUTE, residual_policy
+    from pourbench.agents import directed, residual
 
     if not isinstance(model, RecurrentPPO):
         act: Policy = lambda obs, new: model.predict(obs, deterministic=True)[0]  # noqa: E731
@@ -133,8 +134,11 @@ def model_policy(model: Any) -> Policy:
             )
             return action
 
-    scale = getattr(model, ATTRIBUTE, 0.0)
-    return residual_policy(act, scale) if scale else act
+    scale = getattr(model, residual.ATTRIBUTE, 0.0)
+    if scale:
+        return residual.residual_policy(act, scale)
+    tolerance_g = getattr(model, directed.ATTRIBUTE, None)
+    return act if tolerance_g is None else directed.directed_policy(act, tolerance_g)
 
 
 def load_sb3_policy(path: str | Path) -> Policy:

@@ -69,6 +69,8 @@ _SAME_ON_RESUME = (
     "target_g",
     "utd",
     "shaping",
+    "directed_tilt",
+    "progress_per_g",
 )
 """Settings a resume must keep: SB3 restores its own from model.zip (batch_size, n_steps,
 learning_rate, ...), or they set the worlds, the ICM or every evaluation. ``liquid`` joins
@@ -148,6 +150,10 @@ class TrainArgs:
         final_error_per_g: reward taken off per gram of error when an episode ends
             normally or at the step limit, a denser reward than the thesis' Algorithm 5 (0:
             Algorithm 5 alone; pourbench.envs.reward.RewardConfig).
+        progress_per_g: reward per gram by which each step brings the pouring error down
+            (charge per gram it raises it): every gram of the final error counts, as with
+            final_error_per_g, but paid as the scale moves, so a discounted learner gains
+            nothing by putting off its episode's end (0: none; RewardConfig).
         residual: S in (0, 1]: the policy's action, times S, is added to the PD baseline's,
             and its action head starts at zero, so training starts from the PD's pours
             (pourbench.agents.residual; 0: the policy acts alone). The warm start then fits
@@ -158,6 +164,10 @@ class TrainArgs:
             held through a whole pour gets tried, where independent noise per step averages
             out over the pour's hundreds of steps. Not with a warm start (its cloning fits
             one spread per action dimension).
+        directed_tilt: the policy's tilt output is the size of the tilt rate in the
+            direction Algorithm 4 allows (forward before the target, backward after), a
+            bijection onto the rates the handler applies, so that no half of the output
+            range is dead (pourbench.agents.directed). The saved model keeps the map.
         rehearse: with the curriculum, each episode of lesson k pours a liquid of a lesson
             drawn uniformly among lessons 0…k, so the water-like liquids stay in training
             through the honey-like lesson (why: docs/training.md).
@@ -193,11 +203,13 @@ class TrainArgs:
     learning_rate: float = 3e-4
     target_kl: float = 0.0
     final_error_per_g: float = 0.0
+    progress_per_g: float = 0.0
     residual: float = 0.0
     sde: bool = False
     rehearse: bool = False
     utd: float = 0.0
     shaping: float = 0.0
+    directed_tilt: bool = False
     device: str = "cpu"
 
     def __post_init__(self) -> None:
@@ -216,7 +228,7 @@ class TrainArgs:
                 f"policy {self.policy!r} does not go with algorithm {self.algorithm!r}: lstm "
                 f"is trained by recurrent_ppo, mlp by ppo or {' / '.join(OFF_POLICY)}"
             )
-        for name in ("icm", "curriculum", "resume", "sde", "rehearse"):
+        for name in ("icm", "curriculum", "resume", "sde", "rehearse", "directed_tilt"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameterError(
                     f"{name} must be True or False, got {getattr(self, name)!r}"
@@ -251,7 +263,7 @@ class TrainArgs:
         for name in ("seed", "workers", "eval_every_steps", "warm_start_steps", "dagger_rounds"):
             check_int(name, getattr(self, name), minimum=0)
         check_int("clone_epochs", self.clone_epochs, minimum=1)
-        for name in ("target_kl", "clone_std", "final_error_per_g", "shaping"):
+        for name in ("target_kl", "clone_std", "final_error_per_g", "progress_per_g", "shaping"):
             check_finite(name, getattr(self, name), minimum=0.0)
         if off_policy and self.target_kl:
             raise InvalidParameterError(
@@ -284,6 +296,12 @@ class TrainArgs:
                 f"residual={self.residual!r} trains PPO or RecurrentPPO on top of the PD, "
                 f"without DAgger (algorithm={self.algorithm!r}, "
                 f"dagger_rounds={self.dagger_rounds!r})"
+            )
+        if self.directed_tilt and (self.residual or self.warm_start_steps):
+            raise InvalidParameterError(
+                "directed_tilt=True maps the policy's own tilt output; it does not go with a "
+                f"PD residual or warm start (residual={self.residual!r}, "
+                f"warm_start_steps={self.warm_start_steps!r})"
             )
         if self.sde and self.warm_start_steps:
             raise InvalidParameterError(
@@ -520,6 +538,7 @@ def train(
     from stable_baselines3.common.vec_env import VecMonitor
     from tqdm import TqdmExperimentalWarning
 
+    from pourbench.agents import directed
     from pourbench.agents.callbacks import BudgetCallback, EvalCallback, PourStatsCallback
     from pourbench.agents.evaluate import EvalResult, evaluate
     from pourbench.agents.icm import ICMConfig, ICMVecEnv
@@ -547,12 +566,15 @@ def train(
         from pourbench.envs import default_solver_config
 
         env_kw["solver"] = replace(default_solver_config(), device=args.device)
-    if args.final_error_per_g or args.shaping:
+    if args.final_error_per_g or args.progress_per_g or args.shaping:
         from pourbench.agents.models import GAMMA
         from pourbench.envs.reward import RewardConfig
 
         env_kw["reward"] = RewardConfig(
-            final_error_per_g=args.final_error_per_g, shaping=args.shaping, shaping_gamma=GAMMA
+            final_error_per_g=args.final_error_per_g,
+            progress_per_g=args.progress_per_g,
+            shaping=args.shaping,
+            shaping_gamma=GAMMA,
         )
     base = SB3PourVecEnv(
         args.num_envs, seed=args.seed + 1000 * state["sessions"], workers=args.workers or None,
@@ -561,6 +583,9 @@ def train(
     venv: Any = VecMonitor(base)
     if args.residual:
         venv = ResidualVecEnv(venv, args.residual)
+    tolerance_g = base.venv.config.tolerance_g
+    if args.directed_tilt:
+        venv = directed.DirectedTiltVecEnv(venv, tolerance_g)
     icm = None
     if args.icm:
         icm = venv = ICMVecEnv(venv, ICMConfig(eta=args.icm_eta, update_every=args.n_steps))
@@ -578,6 +603,8 @@ def train(
             )  # fmt: skip
             if args.residual:  # with a warm start, the cloning then sets the spread anew
                 start_residual(model, args.residual, args.clone_std or None)
+            if args.directed_tilt:
+                setattr(model, directed.ATTRIBUTE, tolerance_g)
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()

@@ -534,6 +534,7 @@ class PourBatch:
         self.initial_g = np.zeros(n)
         self.particle_g = np.zeros(n)  # mass of one particle, g
         self.potential = np.zeros(n)  # the reward's shaping potential Φ (RewardConfig.shaping)
+        self.error_g = np.zeros(n)  # pouring error after the last step, g (progress_per_g)
         self.liquid_obs = np.zeros((n, 5))  # density / 1000, cohesion, tension, viscosity, adhesion
         self.noise_key = np.zeros(n, np.uint64)
         self.noise_count = np.zeros(n, np.uint64)
@@ -688,6 +689,7 @@ class PourBatch:
         n = self.solver.fill(world, self.pour_col[world], draw.initial_g, at_least=True)
         self.initial_g[world] = self.worlds[world].initial_g = n * particle_g
         self.filter.reset(world, 0.0)  # the empty receiving container weighs 0 g
+        self.error_g[world] = self.target_g[world]  # nothing poured yet
         if self.config.reward.shaping:
             self.potential[world] = self.shaping_potential()[world]
 
@@ -809,8 +811,17 @@ class PourBatch:
         pouring = self.filter.value_g < info["target_g"] - cfg.tolerance_g
         timed_out = (self.steps >= cfg.max_steps) & ~collided & ~finished & ~diverged
         reward = extrinsic_reward(
-            pouring, collided, finished, info["error_g"], avg, cfg.max_steps, cfg.reward, timed_out
+            pouring,
+            collided,
+            finished,
+            info["error_g"],
+            avg,
+            cfg.max_steps,
+            cfg.reward,
+            timed_out,
+            previous_error_g=self.error_g,
         )
+        self.error_g = np.where(active, info["error_g"], self.error_g)
         terminated = (collided | finished) & ~diverged
         truncated = ((self.steps >= cfg.max_steps) & ~terminated) | diverged
         if cfg.reward.shaping:  # Φ = 0 at every end the learner does not bootstrap

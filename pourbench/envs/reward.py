@@ -11,6 +11,15 @@ A denser option, off in the thesis' reward: ``final_error_per_g`` > 0 also takes
 step limit, so that every gram of the final error counts and not only the two thresholds
 (and a policy cannot escape it by never finishing).
 
+A progress option, off in the thesis' reward: ``progress_per_g`` > 0 adds
+``progress_per_g × (error before the step − error after it)`` (g) every step. Over an episode
+it sums to ``progress_per_g × (target − final error)``: every gram of the final error counts
+as with ``final_error_per_g`` (up to a constant per episode), but paid while the scale moves,
+not at the end. With a learner's discount γ < 1 a charge made at the end shrinks by γ^k when
+the end comes k steps later, so a policy that has over-poured gains by holding its tilt to
+the step limit (docs/training.md); charged as the grams arrive, the error leaves nothing to
+gain by putting off the end.
+
 A shaping option, off in the thesis' reward: ``shaping`` = k > 0 adds the potential-based
 term F = γ Φ(s′) − Φ(s) of Ng, Harada & Russell (1999, "Policy invariance under reward
 transformations"), with Φ = k (approach + tilted (1 − filled) / 2 + closeness): approach = 1 −
@@ -49,6 +58,9 @@ class RewardConfig:
         window: number ``n`` of past completed episodes in the running average.
         final_error_per_g: reward taken off per gram of error at a normal end or at the
             step limit (0: the thesis' Algorithm 5).
+        progress_per_g: reward per gram by which a step brings the pouring error down (and
+            charge per gram by which it raises it), paid at that step (module docstring; 0:
+            none).
         shaping: scale k of the potential-based shaping term (module docstring; 0: none).
         shaping_gamma: the learner's discount γ the shaping term is made for.
     """
@@ -57,6 +69,7 @@ class RewardConfig:
     average_success_g: float = 20.0
     window: int = 10
     final_error_per_g: float = 0.0
+    progress_per_g: float = 0.0
     shaping: float = 0.0
     shaping_gamma: float = 0.995
 
@@ -65,6 +78,7 @@ class RewardConfig:
         check_finite("reward.average_success_g", self.average_success_g, minimum=0.0)
         check_int("reward.window", self.window, minimum=1)
         check_finite("reward.final_error_per_g", self.final_error_per_g, minimum=0.0)
+        check_finite("reward.progress_per_g", self.progress_per_g, minimum=0.0)
         check_finite("reward.shaping", self.shaping, minimum=0.0)
         gamma = check_finite("reward.shaping_gamma", self.shaping_gamma, minimum=0.0)
         if gamma > 1.0:
@@ -80,6 +94,7 @@ def extrinsic_reward(
     max_steps: int,
     config: RewardConfig = RewardConfig(),
     timed_out: np.ndarray | None = None,
+    previous_error_g: np.ndarray | None = None,
 ) -> np.ndarray:
     """Algorithm 5's reward of one step for a batch of worlds.
 
@@ -93,6 +108,8 @@ def extrinsic_reward(
         max_steps: episode step limit.
         timed_out: (n,) the episode reached the step limit this step without another end
             (charged its final error by ``final_error_per_g``; Algorithm 5 gives it nothing).
+        previous_error_g: (n,) the pouring error before this step, g (at a reset: the
+            target); needed with ``progress_per_g``.
     """
     r = np.where(pouring, -1.0 / max_steps, 0.0)
     r = r - np.where(collided, 1.0, 0.0)
@@ -102,6 +119,10 @@ def extrinsic_reward(
     if config.final_error_per_g:
         charged = bonus if timed_out is None else bonus | timed_out
         r = r - np.where(charged, config.final_error_per_g * error_g, 0.0)
+    if config.progress_per_g:
+        if previous_error_g is None:
+            raise InvalidParameterError("reward.progress_per_g needs the error before the step")
+        r = r + config.progress_per_g * (previous_error_g - error_g)
     return r
 
 

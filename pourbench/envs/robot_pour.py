@@ -233,11 +233,13 @@ class RobotPourEnv(gym.Env):
                 f"render_mode must be None or 'rgb_array', got {render_mode!r}"
             )
         cfg = make_config(**kwargs)
-        if cfg.reward.shaping:
-            raise InvalidParameterError(
-                f"reward.shaping={cfg.reward.shaping!r}: PourRobot-v0 pours with the policies "
-                "Pour-v0 trained and has no shaping term; give it Pour-v0's reward without it"
-            )
+        for name in ("shaping", "progress_per_g"):
+            if getattr(cfg.reward, name):
+                raise InvalidParameterError(
+                    f"reward.{name}={getattr(cfg.reward, name)!r}: PourRobot-v0 pours with the "
+                    f"policies Pour-v0 trained and has no {name} term; give it Pour-v0's reward "
+                    "without it"
+                )
         self.default_liquid = None if cfg.liquid is None else known_liquid(cfg.liquid)
         self.settings = settings or RobotSettings()
         self.robot, self.planner_name, self.config = robot, planner, cfg

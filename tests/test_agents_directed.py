@@ -1,0 +1,139 @@
+"""Directed tilt (pourbench.agents.directed): the policy's tilt output maps onto the half of
+the tilt rate Algorithm 4 applies, so every output moves a container above the receiving one;
+the map loses none of the handler's rates, runs in training's vector env, and a saved model
+acts through it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from pourbench.agents import load_policy
+from pourbench.agents.directed import ATTRIBUTE, DirectedTiltVecEnv, direct
+from pourbench.agents.models import make_model
+from pourbench.agents.sb3 import SB3PourVecEnv
+from pourbench.agents.train import TrainArgs
+from pourbench.envs.action_handler import ActionLimits, handle_actions
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+TOLERANCE = 2.0
+DT = 0.1
+ENV = {"workers": 1, "liquid": "water", "target_range_g": (50.0, 50.0), "max_steps": 60}
+
+
+def _obs(remaining_g: np.ndarray) -> np.ndarray:
+    """Observations whose only set feature is the remaining weight (target − reading)."""
+    obs = np.zeros((len(remaining_g), 12), np.float32)
+    obs[:, 9] = remaining_g
+    return obs
+
+
+def _tilt_change(actions: np.ndarray, weight_g: float) -> np.ndarray:
+    """Algorithm 4's tilt change, rad, for each action of a container above the receiving
+    one at 1 rad of tilt, the scale reading ``weight_g`` of a 100 g target."""
+    n = len(actions)
+    _, tilt, above = handle_actions(
+        actions,
+        base=np.zeros((n, 3)),
+        tilt=np.ones(n),
+        target_pos=np.zeros((n, 3)),
+        above_half_extent=np.full(n, 0.01),
+        receiving_height=0.1,
+        weight_g=np.full(n, weight_g),
+        target_g=np.full(n, 100.0),
+        tolerance_g=TOLERANCE,
+        dt=DT,
+    )
+    assert above.all()
+    return tilt - 1.0
+
+
+def test_direct_maps_the_tilt_output_onto_the_allowed_half_and_passes_the_approach() -> None:
+    u = np.array([-1.0, 0.0, 1.0, 3.0])  # 3 is clipped to 1 first
+    actions = np.c_[u, [0.3, -0.7, 1.0, -1.0]]
+    forward = direct(actions, _obs(np.full(4, 50.0)), TOLERANCE)
+    backward = direct(actions, _obs(np.full(4, TOLERANCE)), TOLERANCE)  # at the tolerance
+    np.testing.assert_allclose(forward[:, 0], [0.0, 0.5, 1.0, 1.0])
+    np.testing.assert_allclose(backward[:, 0], [0.0, -0.5, -1.0, -1.0])
+    np.testing.assert_allclose(forward[:, 1], [0.3, -0.7, 1.0, -1.0])
+    np.testing.assert_array_equal(forward[:, 1], backward[:, 1])
+    one = direct(np.array([0.0, 0.2]), _obs(np.array([50.0]))[0], TOLERANCE)
+    assert one.shape == (2,) and one.dtype == np.float32
+
+
+@pytest.mark.parametrize("weight_g", [40.0, 99.0])
+def test_every_directed_tilt_output_moves_the_container_and_none_is_lost(weight_g) -> None:
+    """Before the target (40 g of 100) and after it (99 g, within the 2 g tolerance):
+    the plain action's half of the range pointing the wrong way leaves the tilt where it is,
+    while through the map the tilt change grows strictly with the output, in the allowed
+    direction, and covers every change the plain actions make, from none to the full rate."""
+    u = np.linspace(-1.0, 1.0, 41)
+    actions = np.c_[u, np.zeros_like(u)]
+    remaining = np.full(len(u), 100.0 - weight_g)
+    plain = _tilt_change(actions, weight_g)
+    directed = _tilt_change(direct(actions, _obs(remaining), TOLERANCE), weight_g)
+    sign = 1.0 if weight_g < 100.0 - TOLERANCE else -1.0
+    dead = u * sign <= 0.0
+    assert np.all(plain[dead] == 0.0) and dead.sum() == 21
+    assert np.all(np.diff(sign * directed) > 0.0)
+    full = ActionLimits().max_rate * DT
+    np.testing.assert_allclose([directed[0], directed[-1]], [0.0, sign * full], atol=1e-12)
+    live = actions[~dead]  # each rate the handler applies, reached through the map by 2|ω| − 1
+    inverse = np.c_[2.0 * np.abs(live[:, 0]) - 1.0, live[:, 1]]
+    mapped = direct(inverse, _obs(remaining[~dead]), TOLERANCE)
+    np.testing.assert_allclose(_tilt_change(mapped, weight_g), plain[~dead], atol=1e-7)
+
+
+def _directed_model(tmp_path, mean: tuple[float, float]) -> str:
+    """A SAC model on a directed-tilt vector env whose deterministic action is ``mean``
+    everywhere, saved with its map."""
+    env = SB3PourVecEnv(1, seed=0, **ENV)
+    model = make_model("sac", DirectedTiltVecEnv(env, TOLERANCE), verbose=0)
+    setattr(model, ATTRIBUTE, TOLERANCE)
+    with torch.no_grad():
+        model.policy.actor.mu.weight.zero_()
+        model.policy.actor.mu.bias.copy_(torch.atanh(torch.tensor(mean)))
+    path = str(tmp_path / "directed.zip")
+    model.save(path)
+    env.close()
+    return path
+
+
+def test_a_saved_directed_model_acts_through_its_map(tmp_path) -> None:
+    act = load_policy(_directed_model(tmp_path, (0.2, -0.4)))
+    obs = _obs(np.array([50.0, 1.0]))
+    np.testing.assert_allclose(act(obs[0], True), [0.6, -0.4], atol=1e-5)
+    np.testing.assert_allclose(act(obs[1], False), [-0.6, -0.4], atol=1e-5)
+
+
+def test_the_wrapper_tilts_only_above_the_receiving_container_and_at_the_mapped_rate() -> None:
+    """In Pour-v0's real worlds: approaching at full speed with the output −1 the container
+    stays upright (the map's zero rate), and once above it tilts by (u + 1) / 2 of the full
+    rate each step."""
+    env = DirectedTiltVecEnv(SB3PourVecEnv(1, seed=5, **ENV), TOLERANCE)
+    obs = env.reset()
+    for _ in range(40):
+        obs, _, done, _ = env.step(np.array([[-1.0, 1.0]], np.float32))
+        assert not done[0] and obs[0, 11] == 0.0
+    rate = ActionLimits().max_rate * DT
+    tilts = [float(obs[0, 11])]
+    for _ in range(3):
+        obs, _, done, _ = env.step(np.array([[0.0, 1.0]], np.float32))
+        tilts.append(float(obs[0, 11]))
+    env.close()
+    np.testing.assert_allclose(np.diff(tilts), 0.5 * rate, rtol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("kw", "match"),
+    [
+        ({"directed_tilt": 1}, "directed_tilt must be True or False"),
+        ({"directed_tilt": True, "residual": 0.3}, "does not go with a PD residual"),
+        ({"directed_tilt": True, "warm_start_steps": 64}, "does not go with a PD residual"),
+    ],
+)
+def test_bad_directed_tilt_settings_are_refused(kw, match) -> None:
+    with pytest.raises(ValueError, match=match):
+        TrainArgs(**kw)
