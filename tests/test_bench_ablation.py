@@ -32,7 +32,11 @@ def test_the_off_policy_variant_is_sac_on_water_with_its_own_terms() -> None:
     }
     sac = ablation.settings("sac")
     assert sac["algorithm"] == "sac" and not sac["icm"] and not sac["curriculum"]
-    assert sac["shaping"] > 0 and sac["final_error_per_g"] > 0 and sac["utd"] > 0
+    assert sac["shaping"] > 0 and sac["progress_per_g"] > 0 and sac["utd"] > 0
+    assert sac["directed_tilt"] is True
+    from pourbench.agents.train import TrainArgs
+
+    TrainArgs(**sac)  # a combination the training accepts
 
 
 def _run(evals: list[tuple[float, float]], train_s: list[float], pours) -> dict:

@@ -9,9 +9,9 @@ budget and the same evaluations:
 * ``ppo_icm``: with the curiosity module's intrinsic reward (``--no-curriculum``);
 * ``ppo_icm_curriculum``: with both (the thesis' PourNet);
 * ``sac``: SAC on water (:data:`OFF_POLICY`): the off-policy learner that got furthest from
-  scratch in docs/training.md (it approaches and tilts within 50k steps), with the
-  potential-based shaping term and the final-error term it was measured with, a quarter
-  gradient update per environment step and 16 worlds.
+  scratch in docs/training.md, with the potential-based shaping term, the progress reward
+  (every gram of the error paid as the scale moves) and the directed tilt map it was
+  measured with, a quarter gradient update per environment step and 16 worlds.
 
 Each run is evaluated every tenth of its budget on the same water episodes (10 pours, seeds
 1000…, targets drawn by the env; the curriculum run too, whose own default would be Table
@@ -57,7 +57,8 @@ OFF_POLICY: dict[str, dict[str, Any]] = {
         "icm": False,
         "curriculum": False,
         "shaping": 1.0,
-        "final_error_per_g": 0.05,
+        "progress_per_g": 0.05,
+        "directed_tilt": True,
         "utd": 0.25,
         "num_envs": 16,
     },
@@ -253,8 +254,9 @@ def run(args: argparse.Namespace) -> int:
             "5's reward alone, water in every episode), `ppo_icm` (with the curiosity "
             "module), `ppo_icm_curriculum` (with the liquid curriculum too: the thesis' "
             f"PourNet); and `sac` (SAC on water, shaping {sac['shaping']:g}, "
-            f"final-error term {sac['final_error_per_g']:g} a gram, {sac['utd']:g} updates "
-            f"a step, {sac['num_envs']} worlds). `final_eval_error_g` ± `final_eval_sd_g`: "
+            f"progress reward {sac['progress_per_g']:g} a gram, directed tilt, "
+            f"{sac['utd']:g} updates a step, {sac['num_envs']} worlds). "
+            "`final_eval_error_g` ± `final_eval_sd_g`: "
             "the evaluation on water (10 pours, seeds 1000…) at the end, mean and standard "
             "deviation over the seeds; `best_eval_error_g`: the best evaluation of any seed; "
             "`final_training_error_g`: the mean error of the training episodes that ended "
