@@ -277,6 +277,7 @@ def match_shape(
     if not (np.isfinite(max_scale) and max_scale >= 1.0):
         raise InvalidParameterError(f"max_scale must be finite and >= 1, got {max_scale!r}")
     moving, u, lo, hi = _unit_steps(pts)  # a repeated point scores nothing
+    length = float(hi[-1])  # the path's arc length: repeated points add none
     scales = _scales(max_scale)[:, None]
     best: ShapeMatch | None = None
     for k, template in enumerate(model.templates):
@@ -302,7 +303,7 @@ def match_shape(
         steps = np.zeros(moving.size)
         steps[moving] = terms[i]
         s = float(scales[i, 0])
-        fraction = float(min(_arc(pts)[-1] / s / template.length, 1.0))
+        fraction = min(length / s / template.length, 1.0)
         best = ShapeMatch(float(steps.sum()), steps, s, float(rotation[i]), fraction, k)
     assert best is not None
     return best

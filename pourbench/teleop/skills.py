@@ -272,7 +272,8 @@ class SkillLibrary:
             limits = {"max_rotation": np.radians(max_rotation_deg), "max_scale": max_scale}
         else:
             limits = {}
-        # every skill has a shape here: _mode refused the shape recognizer otherwise
+        # _mode refused the shape recognizer unless every skill has a shape; the filter only
+        # narrows the type
         shapes = {k: sk.shape for k, sk in self.skills.items() if sk.shape is not None}
         matches = {k: match_shape(pts, m, **limits) for k, m in shapes.items()}
         before = np.zeros((len(names), len(windows)))
