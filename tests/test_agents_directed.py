@@ -1,7 +1,8 @@
 """Directed tilt (pourbench.agents.directed): the policy's tilt output maps onto the half of
 the tilt rate Algorithm 4 applies, so every output moves a container above the receiving one;
 the map loses none of the handler's rates, runs in training's vector env, and a saved model
-acts through it."""
+acts through it. The directed approach maps the approach output onto speeds toward the
+receiving container only."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import pytest
 import torch
 
 from pourbench.agents import load_policy
-from pourbench.agents.directed import ATTRIBUTE, DirectedTiltVecEnv, direct
+from pourbench.agents.directed import DirectedTiltVecEnv, direct, mark
 from pourbench.agents.models import make_model
 from pourbench.agents.sb3 import SB3PourVecEnv
 from pourbench.agents.train import TrainArgs
@@ -86,12 +87,48 @@ def test_every_directed_tilt_output_moves_the_container_and_none_is_lost(weight_
     np.testing.assert_allclose(_tilt_change(mapped, weight_g), plain[~dead], atol=1e-7)
 
 
-def _directed_model(tmp_path, mean: tuple[float, float]) -> str:
-    """A SAC model on a directed-tilt vector env whose deterministic action is ``mean``
+def test_the_directed_approach_maps_onto_speeds_toward_the_receiving_container() -> None:
+    """v ↦ (v + 1) / 2 with the tilt untouched when only the approach is mapped; through
+    Algorithm 4 every mapped output keeps or shortens the horizontal distance to the
+    receiving container, growing with v, where the plain outputs below zero lengthen it."""
+    v = np.linspace(-1.0, 1.0, 21)
+    actions = np.c_[np.full_like(v, -0.3), v]
+    mapped = direct(actions, _obs(np.full(len(v), 50.0)), None, approach=True)
+    np.testing.assert_allclose(mapped[:, 0], -0.3, rtol=1e-6)
+    np.testing.assert_allclose(mapped[:, 1], (v + 1.0) / 2.0, atol=1e-7)
+    both = direct(actions, _obs(np.full(len(v), 50.0)), TOLERANCE, approach=True)
+    np.testing.assert_allclose(both[:, 0], 0.35, rtol=1e-6)
+
+    def distance(a: np.ndarray) -> np.ndarray:
+        n = len(a)
+        base, _, above = handle_actions(
+            a,
+            base=np.tile([0.3, 0.0, 0.05], (n, 1)),
+            tilt=np.zeros(n),
+            target_pos=np.zeros((n, 3)),
+            above_half_extent=np.full(n, 0.04),
+            receiving_height=0.1,
+            weight_g=np.zeros(n),
+            target_g=np.full(n, 100.0),
+            tolerance_g=TOLERANCE,
+            dt=DT,
+        )
+        assert not above.any()
+        return np.linalg.norm(base[:, :2], axis=1)
+
+    plain, directed = distance(actions), distance(mapped)
+    assert np.all(plain[v < 0.0] > 0.3)
+    assert np.all(directed <= 0.3) and np.all(np.diff(directed) < 0.0)
+    np.testing.assert_allclose(directed[0], 0.3)
+    np.testing.assert_allclose(directed[-1], 0.3 - ActionLimits().max_speed * DT)
+
+
+def _directed_model(tmp_path, mean: tuple[float, float], approach: bool = False) -> str:
+    """A SAC model on a directed vector env whose deterministic action is ``mean``
     everywhere, saved with its map."""
     env = SB3PourVecEnv(1, seed=0, **ENV)
-    model = make_model("sac", DirectedTiltVecEnv(env, TOLERANCE), verbose=0)
-    setattr(model, ATTRIBUTE, TOLERANCE)
+    model = make_model("sac", DirectedTiltVecEnv(env, TOLERANCE, approach), verbose=0)
+    mark(model, TOLERANCE, approach)
     with torch.no_grad():
         model.policy.actor.mu.weight.zero_()
         model.policy.actor.mu.bias.copy_(torch.atanh(torch.tensor(mean)))
@@ -106,6 +143,8 @@ def test_a_saved_directed_model_acts_through_its_map(tmp_path) -> None:
     obs = _obs(np.array([50.0, 1.0]))
     np.testing.assert_allclose(act(obs[0], True), [0.6, -0.4], atol=1e-5)
     np.testing.assert_allclose(act(obs[1], False), [-0.6, -0.4], atol=1e-5)
+    act = load_policy(_directed_model(tmp_path, (0.2, -0.4), approach=True))
+    np.testing.assert_allclose(act(obs[0], True), [0.6, 0.3], atol=1e-5)
 
 
 def test_the_wrapper_tilts_only_above_the_receiving_container_and_at_the_mapped_rate() -> None:
@@ -132,6 +171,8 @@ def test_the_wrapper_tilts_only_above_the_receiving_container_and_at_the_mapped_
         ({"directed_tilt": 1}, "directed_tilt must be True or False"),
         ({"directed_tilt": True, "residual": 0.3}, "does not go with a PD residual"),
         ({"directed_tilt": True, "warm_start_steps": 64}, "does not go with a PD residual"),
+        ({"directed_approach": "yes"}, "directed_approach must be True or False"),
+        ({"directed_approach": True, "residual": 0.3}, "does not go with a PD residual"),
     ],
 )
 def test_bad_directed_tilt_settings_are_refused(kw, match) -> None:

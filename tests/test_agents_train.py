@@ -354,6 +354,7 @@ def _state(args: dict) -> dict:
         ([], ["--icm-eta", "0.5"], "has icm_eta=0.02, not 0.5"),
         ([], ["--target-g", "100"], "has target_g=0.0, not 100.0"),
         ([], ["--directed-tilt"], "has directed_tilt=False, not True"),
+        ([], ["--directed-approach"], "has directed_approach=False, not True"),
         (["--no-curriculum"], ["--no-curriculum", "--liquid", "honey"],
          "has liquid='water', not 'honey'"),
     ],

@@ -137,8 +137,10 @@ def model_policy(model: Any) -> Policy:
     scale = getattr(model, residual.ATTRIBUTE, 0.0)
     if scale:
         return residual.residual_policy(act, scale)
-    tolerance_g = getattr(model, directed.ATTRIBUTE, None)
-    return act if tolerance_g is None else directed.directed_policy(act, tolerance_g)
+    tolerance_g, approach = directed.model_map(model)
+    if tolerance_g is None and not approach:
+        return act
+    return directed.directed_policy(act, tolerance_g, approach)
 
 
 def load_sb3_policy(path: str | Path) -> Policy:

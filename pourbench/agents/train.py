@@ -70,6 +70,7 @@ _SAME_ON_RESUME = (
     "utd",
     "shaping",
     "directed_tilt",
+    "directed_approach",
     "progress_per_g",
 )
 """Settings a resume must keep: SB3 restores its own from model.zip (batch_size, n_steps,
@@ -168,6 +169,10 @@ class TrainArgs:
             direction Algorithm 4 allows (forward before the target, backward after), a
             bijection onto the rates the handler applies, so that no half of the output
             range is dead (pourbench.agents.directed). The saved model keeps the map.
+        directed_approach: the policy's approach output v becomes the speed toward the
+            receiving container, (v + 1) / 2, so that it can no longer move the container
+            away, which only delays the pour (pourbench.agents.directed). The saved model
+            keeps the map.
         rehearse: with the curriculum, each episode of lesson k pours a liquid of a lesson
             drawn uniformly among lessons 0…k, so the water-like liquids stay in training
             through the honey-like lesson (why: docs/training.md).
@@ -210,6 +215,7 @@ class TrainArgs:
     utd: float = 0.0
     shaping: float = 0.0
     directed_tilt: bool = False
+    directed_approach: bool = False
     device: str = "cpu"
 
     def __post_init__(self) -> None:
@@ -228,7 +234,15 @@ class TrainArgs:
                 f"policy {self.policy!r} does not go with algorithm {self.algorithm!r}: lstm "
                 f"is trained by recurrent_ppo, mlp by ppo or {' / '.join(OFF_POLICY)}"
             )
-        for name in ("icm", "curriculum", "resume", "sde", "rehearse", "directed_tilt"):
+        for name in (
+            "icm",
+            "curriculum",
+            "resume",
+            "sde",
+            "rehearse",
+            "directed_tilt",
+            "directed_approach",
+        ):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameterError(
                     f"{name} must be True or False, got {getattr(self, name)!r}"
@@ -297,12 +311,13 @@ class TrainArgs:
                 f"without DAgger (algorithm={self.algorithm!r}, "
                 f"dagger_rounds={self.dagger_rounds!r})"
             )
-        if self.directed_tilt and (self.residual or self.warm_start_steps):
-            raise InvalidParameterError(
-                "directed_tilt=True maps the policy's own tilt output; it does not go with a "
-                f"PD residual or warm start (residual={self.residual!r}, "
-                f"warm_start_steps={self.warm_start_steps!r})"
-            )
+        for name in ("directed_tilt", "directed_approach"):
+            if getattr(self, name) and (self.residual or self.warm_start_steps):
+                raise InvalidParameterError(
+                    f"{name}=True maps the policy's own output; it does not go with a PD "
+                    f"residual or warm start (residual={self.residual!r}, "
+                    f"warm_start_steps={self.warm_start_steps!r})"
+                )
         if self.sde and self.warm_start_steps:
             raise InvalidParameterError(
                 f"sde=True with warm_start_steps={self.warm_start_steps!r}: the cloning fits "
@@ -583,9 +598,9 @@ def train(
     venv: Any = VecMonitor(base)
     if args.residual:
         venv = ResidualVecEnv(venv, args.residual)
-    tolerance_g = base.venv.config.tolerance_g
-    if args.directed_tilt:
-        venv = directed.DirectedTiltVecEnv(venv, tolerance_g)
+    tolerance_g = base.venv.config.tolerance_g if args.directed_tilt else None
+    if args.directed_tilt or args.directed_approach:
+        venv = directed.DirectedTiltVecEnv(venv, tolerance_g, args.directed_approach)
     icm = None
     if args.icm:
         icm = venv = ICMVecEnv(venv, ICMConfig(eta=args.icm_eta, update_every=args.n_steps))
@@ -603,8 +618,7 @@ def train(
             )  # fmt: skip
             if args.residual:  # with a warm start, the cloning then sets the spread anew
                 start_residual(model, args.residual, args.clone_std or None)
-            if args.directed_tilt:
-                setattr(model, directed.ATTRIBUTE, tolerance_g)
+            directed.mark(model, tolerance_g, args.directed_approach)
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()
