@@ -100,6 +100,19 @@ def test_a_finished_run_evaluated_on_other_liquids_is_refused_not_read_back(tmp_
     assert (out / "result.json").read_text() == written
 
 
+def test_a_finished_run_with_other_settings_is_refused_not_read_back(tmp_path) -> None:
+    """A run finished before its variant's settings changed is not read back as the new
+    variant: the error names each setting that differs, and nothing is overwritten."""
+    out = tmp_path / "full" / "sac" / "seed0"
+    out.mkdir(parents=True)
+    args = {**ablation.settings("sac"), "directed_tilt": False, "eval_liquid": "water"}
+    written = json.dumps({"timesteps": 200_000, "args": args})
+    (out / "result.json").write_text(written)
+    with pytest.raises(InvalidParameterError, match="directed_tilt=False, not True"):
+        ablation.train_variant("sac", 0, quick=False, runs=tmp_path)
+    assert (out / "result.json").read_text() == written
+
+
 @pytest.mark.slow
 def test_quick_ablation_trains_every_variant_and_reads_them_back(tmp_path, monkeypatch, capsys):
     """The quick variant trains each variant once (seed 0, 256 steps), writes the table and

@@ -105,6 +105,17 @@ def train_variant(name: str, seed: int, quick: bool, runs: Path = RUNS) -> dict[
                 f"{', '.join(had.eval_liquids())}, not {EVAL_LIQUID}; move it away to train "
                 "the variant anew"
             )
+        differ = {
+            k: (getattr(had, k), v)
+            for k, v in settings(name).items()
+            if k != "num_envs" and getattr(had, k) != v
+        }
+        if differ:
+            said = ", ".join(f"{k}={a!r}, not {b!r}" for k, (a, b) in differ.items())
+            raise InvalidParameterError(
+                f"ablation: the run in {str(out)!r} was trained with {said}; move it away "
+                "to train the variant anew"
+            )
         if done["timesteps"] >= steps:
             print(f"ablation: {name} seed {seed} read back from {result}", file=sys.stderr)
             return done
