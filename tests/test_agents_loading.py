@@ -38,7 +38,7 @@ def test_pd_and_random_by_name() -> None:
     assert acts.shape == (5, 2) and np.all(np.abs(acts) <= 1.0)
 
 
-@pytest.mark.parametrize("algorithm", ["sac", "tqc", "crossq"])
+@pytest.mark.parametrize("algorithm", ["sac", "tqc", "crossq", "td3"])
 def test_a_saved_off_policy_model_acts_as_in_memory(tmp_path, algorithm) -> None:
     """Each off-policy learner ``pourbench train`` builds, trained a few updates (two per
     environment step for TQC and CrossQ), saved and read back by name of its algorithm."""

@@ -1,8 +1,8 @@
 """Pouring policies by name or path: :func:`load_policy` returns ``f(obs, new_episode) ->
 action`` for the PD baseline ("pd"), a uniform random policy ("random"), a shipped policy
 (``pourbench/agents/policies/<name>.zip`` beside ``<name>.json``, its metadata), or the path
-of a model saved by ``pourbench train`` (PPO, RecurrentPPO, SAC, TQC or CrossQ; the algorithm
-is read from the file).
+of a model saved by ``pourbench train`` (PPO, RecurrentPPO, SAC, TQC, CrossQ or TD3; the
+algorithm is read from the file).
 
 ``obs`` is one Pour-v0 observation (12 values), the action two values in [-1, 1];
 ``new_episode`` is True on an episode's first step. A recurrent policy keeps its LSTM state
@@ -42,7 +42,7 @@ class UnknownPolicyError(UnknownNameError):
         return (type(self), (self.name,))
 
 
-OFF_POLICY = ("sac", "tqc", "crossq")
+OFF_POLICY = ("sac", "tqc", "crossq", "td3")
 """The off-policy learners ``pourbench train`` builds (replay buffer, update-to-data ratio)."""
 
 # a saved model's policy class module -> its algorithm
@@ -52,11 +52,12 @@ _ALGORITHMS = {
     "stable_baselines3.sac.policies": "sac",
     "sb3_contrib.tqc.policies": "tqc",
     "sb3_contrib.crossq.policies": "crossq",
+    "stable_baselines3.td3.policies": "td3",
 }
 
 
 def algorithm_of(path: str | Path) -> str:
-    """ "ppo", "recurrent_ppo", "sac", "tqc" or "crossq": the algorithm a saved SB3 model
+    """ "ppo", "recurrent_ppo", "sac", "tqc", "crossq" or "td3": the algorithm a saved SB3 model
     file was made by.
 
     Raises:
@@ -76,14 +77,14 @@ def algorithm_of(path: str | Path) -> str:
         ) from None
     if module not in _ALGORITHMS:
         raise InvalidParameterError(
-            f"{str(p)!r} holds a {module} policy; PPO, RecurrentPPO, SAC, TQC or CrossQ "
+            f"{str(p)!r} holds a {module} policy; PPO, RecurrentPPO, SAC, TQC, CrossQ or TD3 "
             "models are read"
         )
     return _ALGORITHMS[module]
 
 
 def load_model(path: str | Path, env: Any = None, device: str = "cpu") -> Any:
-    """The SB3 model saved at ``path`` (PPO, RecurrentPPO, SAC, TQC or CrossQ), on ``env``
+    """The SB3 model saved at ``path`` (PPO, RecurrentPPO, SAC, TQC, CrossQ or TD3), on ``env``
     if given.
 
     Raises:
@@ -91,9 +92,16 @@ def load_model(path: str | Path, env: Any = None, device: str = "cpu") -> Any:
             (12 observations, 2 actions).
     """
     from sb3_contrib import TQC, CrossQ, RecurrentPPO
-    from stable_baselines3 import PPO, SAC
+    from stable_baselines3 import PPO, SAC, TD3
 
-    classes = {"ppo": PPO, "recurrent_ppo": RecurrentPPO, "sac": SAC, "tqc": TQC, "crossq": CrossQ}
+    classes = {
+        "ppo": PPO,
+        "recurrent_ppo": RecurrentPPO,
+        "sac": SAC,
+        "tqc": TQC,
+        "crossq": CrossQ,
+        "td3": TD3,
+    }
     cls = classes[algorithm_of(path)]
     try:
         model = cls.load(path, env=env, device=device)

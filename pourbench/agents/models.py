@@ -5,10 +5,13 @@
   3 × 256 layers for the policy and the value (the thesis' "3 layers × 256 hidden units" are
   ML-Agents' dense layers around one recurrent memory; sb3-contrib puts the LSTM first, then
   ``net_arch``). The actor and the critic each have their own LSTM (sb3-contrib's default).
-* **SAC** (the thesis' comparison, §6.5.2), **TQC** and **CrossQ** (sb3-contrib), the
-  off-policy learners: actor and critics of 3 × 256 (CrossQ's critics with its batch
-  renormalisation, without target networks), a replay buffer of a million transitions, and
-  ``utd`` gradient updates per environment step (the update-to-data ratio).
+* **SAC** (the thesis' comparison, §6.5.2), **TQC** and **CrossQ** (sb3-contrib) and
+  **TD3**, the off-policy learners: actor and critics of 3 × 256 (CrossQ's critics with its
+  batch renormalisation, without target networks), a replay buffer of a million transitions,
+  and ``utd`` gradient updates per environment step (the update-to-data ratio). TD3's policy
+  is deterministic and explores with Gaussian noise of :data:`TD3_NOISE` added to its actions
+  (clipped to the action bounds), the spread of the TD3 paper; the others learn their
+  spread.
 
 Sequence length: sb3-contrib has no such setting. It backpropagates through each world's
 part of a rollout, ``n_steps`` steps, cut at episode starts and at minibatch edges, so a
@@ -26,9 +29,11 @@ hyper-parameters are SB3's defaults.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
@@ -42,6 +47,9 @@ LSTM_UNITS = 256
 GAMMA = 0.995
 REPLAY_SIZE = 1_000_000
 """Transitions an off-policy learner's replay buffer holds."""
+TD3_NOISE = 0.1
+"""Standard deviation of TD3's exploration noise on each action in [-1, 1]."""
+NAMES = {"crossq": "CrossQ", "td3": "TD3"}
 
 OBS_SCALE = (1.0, 0.0025, 0.0075, 1.0, 0.1, 0.1, 0.1, 100.0, 100.0, 100.0, 100.0, 1.0)
 """The unit each Pour-v0 observation feature is divided by before the networks: density g/ml,
@@ -102,7 +110,7 @@ def make_model(
     Raises:
         InvalidParameterError: an unknown algorithm.
     """
-    from stable_baselines3 import PPO, SAC
+    from stable_baselines3 import PPO, SAC, TD3
 
     common: dict[str, Any] = {
         "seed": seed,
@@ -125,11 +133,18 @@ def make_model(
     if algorithm in OFF_POLICY:
         from sb3_contrib import TQC, CrossQ
 
-        cls = {"sac": SAC, "tqc": TQC, "crossq": CrossQ}[algorithm]
-        if algorithm == "crossq":  # no gSDE in CrossQ
+        cls = {"sac": SAC, "tqc": TQC, "crossq": CrossQ, "td3": TD3}[algorithm]
+        if algorithm in ("crossq", "td3"):  # no gSDE in either
             if sde:
-                raise InvalidParameterError("sde: CrossQ explores with its Gaussian policy only")
+                raise InvalidParameterError(
+                    f"sde: {NAMES[algorithm]} explores with its own noise only"
+                )
             del common["use_sde"]
+        if algorithm == "td3":
+            from stable_baselines3.common.noise import NormalActionNoise
+
+            dim = env.action_space.shape[0]
+            common["action_noise"] = NormalActionNoise(np.zeros(dim), np.full(dim, TD3_NOISE))
         arch = {"net_arch": list(HIDDEN), **extractor}
         return cls(
             "MlpPolicy",
@@ -143,6 +158,17 @@ def make_model(
     raise InvalidParameterError(
         f"algorithm must be one of {['ppo', 'recurrent_ppo', *OFF_POLICY]}, got {algorithm!r}"
     )
+
+
+def set_policy_std(model: Any, std: float) -> None:
+    """Set the new PPO or RecurrentPPO ``model``'s standard deviation to ``std`` per action
+    dimension. With gSDE (``use_sde``), whose spread per action is
+    ``‖features‖ · exp(log_std)`` over the policy's last hidden layer of d units (each in
+    [-1, 1]), ``exp(log_std)`` is ``std / √d``: the spread is at most ``std`` in any state."""
+    log_std = model.policy.log_std
+    d = log_std.shape[0] if model.use_sde else 1
+    with torch.no_grad():
+        log_std.fill_(math.log(std / math.sqrt(d)))
 
 
 def gradient_steps(utd: float, num_envs: int) -> int:

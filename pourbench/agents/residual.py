@@ -20,13 +20,13 @@ policies.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 import torch
 from stable_baselines3.common.vec_env import VecEnvWrapper
 
+from pourbench.agents.models import set_policy_std
 from pourbench.agents.pd import PDPourer
 
 ATTRIBUTE = "pd_residual"
@@ -82,15 +82,11 @@ def start_residual(model: Any, scale: float, std: float | None = None) -> None:
     """Make the new PPO or RecurrentPPO ``model`` a residual policy of ``scale``: record the
     scale (:data:`ATTRIBUTE`, saved with the model), set its action head to zero, weights
     and bias, so its mean action is 0 in every state and it starts as the PD, and its
-    standard deviation to ``std`` per action dimension when given. With gSDE (``use_sde``),
-    whose spread per action is ``‖features‖ · exp(log_std)`` over the policy's last hidden
-    layer of d units (each in [-1, 1]), ``exp(log_std)`` is ``std / √d``: the spread is at
-    most ``std`` in any state."""
+    standard deviation to ``std`` per action dimension when given
+    (:func:`~pourbench.agents.models.set_policy_std`)."""
     setattr(model, ATTRIBUTE, scale)
     with torch.no_grad():
         model.policy.action_net.weight.zero_()
         model.policy.action_net.bias.zero_()
-        if std is not None:
-            log_std = model.policy.log_std
-            d = log_std.shape[0] if model.use_sde else 1
-            log_std.fill_(math.log(std / math.sqrt(d)))
+    if std is not None:
+        set_policy_std(model, std)

@@ -85,7 +85,7 @@ class TrainArgs:
     Attributes:
         algorithm: ppo (with policy mlp: the FNN PourNet), recurrent_ppo (with policy lstm:
             the LSTM PourNet), or an off-policy learner with policy mlp and no ICM: sac,
-            tqc or crossq (sb3-contrib).
+            tqc or crossq (sb3-contrib), or td3.
         policy: mlp or lstm (see pourbench.agents.models for the architectures).
         icm: add the curiosity module's intrinsic reward (PPO and RecurrentPPO; off with
             --no-icm).
@@ -140,6 +140,11 @@ class TrainArgs:
             sign that its phase allows, so noise around a hold tilts on and over-pours: the
             smaller the spread, the closer PPO's noisy rollouts pour to its deterministic
             policy (docs/training.md). Needs warm_start_steps or residual.
+        init_std: PPO and RecurrentPPO from scratch: the policy's standard deviation per
+            action dimension at the start (0: SB3's 1). Algorithm 4 (and the directed maps'
+            hold at the edge of the output range) turn noise into net forward tilt, so a
+            policy trained under a large spread learns a mean that only pours with that
+            noise (docs/training.md).
         warm_start_lessons: with the curriculum, "first": the demonstrations and DAgger
             rollouts pour the first lesson's liquids, where PPO starts; "all": each rollout
             is split evenly over the lessons (measured in docs/training.md).
@@ -204,6 +209,7 @@ class TrainArgs:
     clone_epochs: int = 30
     dagger_rounds: int = 0
     clone_std: float = 0.0
+    init_std: float = 0.0
     warm_start_lessons: str = "first"
     learning_rate: float = 3e-4
     target_kl: float = 0.0
@@ -277,7 +283,15 @@ class TrainArgs:
         for name in ("seed", "workers", "eval_every_steps", "warm_start_steps", "dagger_rounds"):
             check_int(name, getattr(self, name), minimum=0)
         check_int("clone_epochs", self.clone_epochs, minimum=1)
-        for name in ("target_kl", "clone_std", "final_error_per_g", "progress_per_g", "shaping"):
+        spreads_and_terms = (
+            "target_kl",
+            "clone_std",
+            "init_std",
+            "final_error_per_g",
+            "progress_per_g",
+            "shaping",
+        )
+        for name in spreads_and_terms:
             check_finite(name, getattr(self, name), minimum=0.0)
         if off_policy and self.target_kl:
             raise InvalidParameterError(
@@ -288,8 +302,9 @@ class TrainArgs:
                 f"warm_start_steps={self.warm_start_steps!r}: the PD warm start clones into "
                 f"PPO or RecurrentPPO, not {self.algorithm}"
             )
-        if self.algorithm == "crossq" and self.sde:
-            raise InvalidParameterError("sde: CrossQ explores with its Gaussian policy only")
+        if self.algorithm in ("crossq", "td3") and self.sde:
+            name = {"crossq": "CrossQ", "td3": "TD3"}[self.algorithm]
+            raise InvalidParameterError(f"sde: {name} explores with its own noise only")
         if self.dagger_rounds and not self.warm_start_steps:
             raise InvalidParameterError(
                 f"dagger_rounds={self.dagger_rounds!r} relabels the clone's own rollouts: it "
@@ -326,6 +341,13 @@ class TrainArgs:
         if self.rehearse and not self.curriculum:
             raise InvalidParameterError(
                 "rehearse=True draws from the curriculum's earlier lessons: it needs the curriculum"
+            )
+        if self.init_std and (self.warm_start_steps or self.residual or off_policy):
+            raise InvalidParameterError(
+                f"init_std={self.init_std!r} sets the spread of a PPO or RecurrentPPO policy "
+                "from scratch (clone_std sets a cloned or residual one's; the off-policy "
+                f"learners set their own): not with algorithm={self.algorithm!r}, "
+                f"warm_start_steps={self.warm_start_steps!r}, residual={self.residual!r}"
             )
         if self.clone_std and not (self.warm_start_steps or self.residual):
             raise InvalidParameterError(
@@ -558,7 +580,7 @@ def train(
     from pourbench.agents.evaluate import EvalResult, evaluate
     from pourbench.agents.icm import ICMConfig, ICMVecEnv
     from pourbench.agents.loading import load_model, model_policy
-    from pourbench.agents.models import make_model
+    from pourbench.agents.models import make_model, set_policy_std
     from pourbench.agents.plots import plot_training
     from pourbench.agents.residual import ResidualVecEnv, start_residual
     from pourbench.agents.sb3 import SB3PourVecEnv
@@ -618,6 +640,8 @@ def train(
             )  # fmt: skip
             if args.residual:  # with a warm start, the cloning then sets the spread anew
                 start_residual(model, args.residual, args.clone_std or None)
+            if args.init_std:
+                set_policy_std(model, args.init_std)
             directed.mark(model, tolerance_g, args.directed_approach)
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
@@ -761,7 +785,7 @@ def train(
 
 DESCRIPTION = (
     "Train PourNet on Pour-v0 (PPO with an MLP, RecurrentPPO with an LSTM, or the off-policy "
-    "SAC, TQC or CrossQ; curiosity module and liquid curriculum on by default) and compare it "
+    "SAC, TQC, CrossQ or TD3; curiosity module and liquid curriculum on by default) and compare it "
     "with a random policy."
 )
 
