@@ -7,6 +7,7 @@ import json
 import re
 from dataclasses import asdict, replace
 
+import numpy as np
 import pytest
 
 from pourbench.agents.train import main
@@ -52,6 +53,9 @@ SMALL = ["--num-envs", "2", "--workers", "1", "--n-steps", "32", "--batch-size",
         (["--algorithm", "tqc", "--no-icm", "--utd", "-1"], "utd must be >= 0"),
         (["--algorithm", "crossq", "--no-icm", "--sde"], "CrossQ explores with its own noise"),
         (["--algorithm", "td3", "--no-icm", "--sde"], "TD3 explores with its own noise"),
+        (["--algorithm", "sac", "--no-icm", "--init-std", "0.3"], "init_std=0.3 sets the spread"),
+        (["--init-std", "0.3", "--residual", "0.2"], "init_std=0.3 sets the spread"),
+        (["--init-std", "-1"], "init_std must be >= 0"),
         (["--workers", "3", "--num-envs", "2"], "workers=3 is more than num_envs=2"),
         (["--device", "tpu"], "device must be 'cpu' or 'cuda', got 'tpu'"),
         (["--target-g", "-5"], "target_g must be > 0, got -5.0"),
@@ -96,6 +100,22 @@ def test_an_output_path_that_is_a_file_is_refused(tmp_path, capsys) -> None:
     a_file.write_text("keep me")
     assert main(["--out", str(a_file)]) == 2
     assert "is a file" in capsys.readouterr().err and a_file.read_text() == "keep me"
+
+
+@pytest.mark.slow
+def test_init_std_starts_a_policy_from_scratch_with_that_spread(tmp_path) -> None:
+    """``--init-std 0.3``: the saved model's spread per action is 0.3 after one rollout's
+    update (PPO moves log σ by far less than the 1.2 between SB3's σ = 1 and 0.3), and the
+    policy's mean is untouched (not a residual, no head zeroed)."""
+    from pourbench.agents.loading import load_model
+
+    out = tmp_path / "run"
+    argv = [*SMALL, "--no-icm", "--no-curriculum", "--budget-steps", "64", "--eval-episodes"]
+    assert main([*argv, "1", "--init-std", "0.3", "--out", str(out)]) == 0
+    model = load_model(out / "model.zip")
+    std = model.policy.log_std.exp().detach().numpy()
+    np.testing.assert_allclose(std, [0.3, 0.3], rtol=0.05)
+    assert model.policy.action_net.weight.abs().sum() > 0.0
 
 
 @pytest.mark.slow
