@@ -22,21 +22,23 @@ def test_the_variants_differ_only_in_curiosity_and_curriculum() -> None:
     }
 
 
-def test_the_off_policy_variant_is_sac_on_water_with_its_own_terms() -> None:
-    assert ablation.variant_names() == ["ppo", "ppo_icm", "ppo_icm_curriculum", "sac"]
+def test_the_off_policy_variant_is_td3_on_water_with_the_same_terms() -> None:
+    assert ablation.variant_names() == ["ppo", "ppo_icm", "ppo_icm_curriculum", "td3"]
     assert ablation.settings("ppo_icm") == {
         "algorithm": "recurrent_ppo",
         "policy": "lstm",
         "icm": True,
         "curriculum": False,
+        **ablation.DENSE,
     }
-    sac = ablation.settings("sac")
-    assert sac["algorithm"] == "sac" and not sac["icm"] and not sac["curriculum"]
-    assert sac["shaping"] > 0 and sac["progress_per_g"] > 0 and sac["utd"] > 0
-    assert sac["directed_tilt"] is True
+    off = ablation.settings("td3")
+    assert off["algorithm"] == "td3" and not off["icm"] and not off["curriculum"]
+    assert {k: off[k] for k in ablation.DENSE} == ablation.DENSE
+    assert off["utd"] > 0 and off["directed_approach"] is True
     from pourbench.agents.train import TrainArgs
 
-    TrainArgs(**sac)  # a combination the training accepts
+    for name in ablation.variant_names():
+        TrainArgs(**ablation.settings(name))  # combinations the training accepts
 
 
 def _run(evals: list[tuple[float, float]], train_s: list[float], pours) -> dict:
@@ -103,13 +105,19 @@ def test_a_finished_run_evaluated_on_other_liquids_is_refused_not_read_back(tmp_
 def test_a_finished_run_with_other_settings_is_refused_not_read_back(tmp_path) -> None:
     """A run finished before its variant's settings changed is not read back as the new
     variant: the error names each setting that differs, and nothing is overwritten."""
-    out = tmp_path / "full" / "sac" / "seed0"
-    out.mkdir(parents=True)
-    args = {**ablation.settings("sac"), "directed_tilt": False, "eval_liquid": "water"}
+    out = tmp_path / "full" / "ppo" / "seed0"
+    out.mkdir(parents=True)  # a run of the thesis' reward alone, before the dense terms
+    args = {
+        "algorithm": "recurrent_ppo",
+        "policy": "lstm",
+        "icm": False,
+        "curriculum": False,
+        "eval_liquid": "water",
+    }
     written = json.dumps({"timesteps": 200_000, "args": args})
     (out / "result.json").write_text(written)
-    with pytest.raises(InvalidParameterError, match="directed_tilt=False, not True"):
-        ablation.train_variant("sac", 0, quick=False, runs=tmp_path)
+    with pytest.raises(InvalidParameterError, match=r"shaping=0\.0, not 1\.0, progress_per_g"):
+        ablation.train_variant("ppo", 0, quick=False, runs=tmp_path)
     assert (out / "result.json").read_text() == written
 
 

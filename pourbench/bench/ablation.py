@@ -4,14 +4,16 @@ curriculum add to PPO, and how an off-policy learner compares, over seeds.
 Four variants of ``pourbench train``, each with every seed of :data:`SEEDS`, the same step
 budget and the same evaluations:
 
-* ``ppo``: RecurrentPPO (LSTM), Algorithm 5's reward alone, water in every episode
-  (``--no-icm --no-curriculum``);
+* ``ppo``: RecurrentPPO (LSTM) on water in every episode (``--no-icm --no-curriculum``),
+  with :data:`DENSE`: Algorithm 5's reward plus the potential-based shaping term and the
+  progress reward (every gram of the error paid as the scale moves), and the directed tilt
+  map. Algorithm 5's reward alone never pours within this budget (docs/training.md), which
+  leaves curiosity and the curriculum nothing to add to;
 * ``ppo_icm``: with the curiosity module's intrinsic reward (``--no-curriculum``);
-* ``ppo_icm_curriculum``: with both (the thesis' PourNet);
-* ``sac``: SAC on water (:data:`OFF_POLICY`): the off-policy learner that got furthest from
-  scratch in docs/training.md, with the potential-based shaping term, the progress reward
-  (every gram of the error paid as the scale moves) and the directed tilt map it was
-  measured with, a quarter gradient update per environment step and 16 worlds.
+* ``ppo_icm_curriculum``: with both (the thesis' PourNet, on the same dense reward);
+* ``td3``: TD3 on water (:data:`OFF_POLICY`), the off-policy learner that reached its best
+  pours in the fewest steps in docs/training.md, with :data:`DENSE`, the directed approach
+  map too, a quarter gradient update per environment step and 16 worlds.
 
 Each run is evaluated every tenth of its budget on the same water episodes (10 pours, seeds
 1000…, targets drawn by the env; the curriculum run too, whose own default would be Table
@@ -24,8 +26,8 @@ episode would have none. The table gives, per variant, the first evaluation step
 seed's error reached :data:`TARGET_G`. The budget (:data:`BUDGET_STEPS`) is chosen so that
 the twelve runs take about 8 hours of a 2-core machine (docs/training.md). The runs live in
 ``runs/ablation/full/<variant>/seed<k>/``; a stopped ablation resumes each run from its last
-checkpoint, and a finished run is read back, not trained again. ``--quick``: seed 0 alone,
-256 steps a run.
+checkpoint, and a finished run is read back, not trained again (one trained with other
+settings than its variant's is refused). ``--quick``: seed 0 alone, 256 steps a run.
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ import numpy as np
 from pourbench.bench._report import git_sha, markdown_table, write_report
 from pourbench.errors import InvalidParameterError
 
+DENSE: dict[str, Any] = {"shaping": 1.0, "progress_per_g": 0.05, "directed_tilt": True}
+"""The reward terms and the tilt map every variant trains with (docs/training.md)."""
 VARIANTS: dict[str, dict[str, bool]] = {
     "ppo": {"icm": False, "curriculum": False},
     "ppo_icm": {"icm": True, "curriculum": False},
@@ -51,14 +55,13 @@ VARIANTS: dict[str, dict[str, bool]] = {
 """The thesis' ablation: RecurrentPPO (LSTM) runs that differ only in these flags."""
 ALGORITHM, POLICY = "recurrent_ppo", "lstm"
 OFF_POLICY: dict[str, dict[str, Any]] = {
-    "sac": {
-        "algorithm": "sac",
+    "td3": {
+        "algorithm": "td3",
         "policy": "mlp",
         "icm": False,
         "curriculum": False,
-        "shaping": 1.0,
-        "progress_per_g": 0.05,
-        "directed_tilt": True,
+        **DENSE,
+        "directed_approach": True,
         "utd": 0.25,
         "num_envs": 16,
     },
@@ -81,7 +84,7 @@ def variant_names() -> list[str]:
 def settings(name: str) -> dict[str, Any]:
     """The :class:`~pourbench.agents.train.TrainArgs` fields that make variant ``name``."""
     if name in VARIANTS:
-        return {"algorithm": ALGORITHM, "policy": POLICY, **VARIANTS[name]}
+        return {"algorithm": ALGORITHM, "policy": POLICY, **DENSE, **VARIANTS[name]}
     return dict(OFF_POLICY[name])
 
 
@@ -257,16 +260,17 @@ def run(args: argparse.Namespace) -> int:
     runs = {name: [curves(Path(r["args"]["out"])) for r in rs] for name, rs in results.items()}
     rows = rows_of(results, runs)
     out = Path(args.out)
-    sac = OFF_POLICY["sac"]
+    off = OFF_POLICY["td3"]
     body = "\n".join(
         [
             f"`pourbench train` runs of {ALGORITHM} ({POLICY}) with seeds "
-            f"{', '.join(map(str, seeds))}, the same budget and evaluations: `ppo` (Algorithm "
-            "5's reward alone, water in every episode), `ppo_icm` (with the curiosity "
-            "module), `ppo_icm_curriculum` (with the liquid curriculum too: the thesis' "
-            f"PourNet); and `sac` (SAC on water, shaping {sac['shaping']:g}, "
-            f"progress reward {sac['progress_per_g']:g} a gram, directed tilt, "
-            f"{sac['utd']:g} updates a step, {sac['num_envs']} worlds). "
+            f"{', '.join(map(str, seeds))}, the same budget and evaluations, each with Algorithm "
+            f"5's reward plus shaping {DENSE['shaping']:g} and a progress reward of "
+            f"{DENSE['progress_per_g']:g} a gram, and the directed tilt: `ppo` (water in "
+            "every episode), `ppo_icm` (with the curiosity module), `ppo_icm_curriculum` "
+            "(with the liquid curriculum too: the thesis' PourNet); and `td3` (TD3 on water, "
+            f"the directed approach too, {off['utd']:g} updates a step, "
+            f"{off['num_envs']} worlds). "
             "`final_eval_error_g` ± `final_eval_sd_g`: "
             "the evaluation on water (10 pours, seeds 1000…) at the end, mean and standard "
             "deviation over the seeds; `best_eval_error_g`: the best evaluation of any seed; "
