@@ -44,6 +44,8 @@ class UnknownPolicyError(UnknownNameError):
 
 OFF_POLICY = ("sac", "tqc", "crossq", "td3")
 """The off-policy learners ``pourbench train`` builds (replay buffer, update-to-data ratio)."""
+NO_SDE = {"crossq": "CrossQ", "td3": "TD3"}
+"""The off-policy learners without gSDE, by their written names."""
 
 # a saved model's policy class module -> its algorithm
 _ALGORITHMS = {

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
-from pourbench.agents.loading import OFF_POLICY
+from pourbench.agents.loading import NO_SDE, OFF_POLICY
 from pourbench.errors import InvalidParameterError
 
 HIDDEN = (256, 256, 256)
@@ -49,7 +49,6 @@ REPLAY_SIZE = 1_000_000
 """Transitions an off-policy learner's replay buffer holds."""
 TD3_NOISE = 0.1
 """Standard deviation of TD3's exploration noise on each action in [-1, 1]."""
-NAMES = {"crossq": "CrossQ", "td3": "TD3"}
 
 OBS_SCALE = (1.0, 0.0025, 0.0075, 1.0, 0.1, 0.1, 0.1, 100.0, 100.0, 100.0, 100.0, 1.0)
 """The unit each Pour-v0 observation feature is divided by before the networks: density g/ml,
@@ -134,10 +133,10 @@ def make_model(
         from sb3_contrib import TQC, CrossQ
 
         cls = {"sac": SAC, "tqc": TQC, "crossq": CrossQ, "td3": TD3}[algorithm]
-        if algorithm in ("crossq", "td3"):  # no gSDE in either
+        if algorithm in NO_SDE:
             if sde:
                 raise InvalidParameterError(
-                    f"sde: {NAMES[algorithm]} explores with its own noise only"
+                    f"sde: {NO_SDE[algorithm]} explores with its own noise only"
                 )
             del common["use_sde"]
         if algorithm == "td3":

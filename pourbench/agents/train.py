@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from pourbench.agents.loading import OFF_POLICY
+from pourbench.agents.loading import NO_SDE, OFF_POLICY
 from pourbench.errors import (
     InvalidParameterError,
     PourbenchError,
@@ -302,9 +302,10 @@ class TrainArgs:
                 f"warm_start_steps={self.warm_start_steps!r}: the PD warm start clones into "
                 f"PPO or RecurrentPPO, not {self.algorithm}"
             )
-        if self.algorithm in ("crossq", "td3") and self.sde:
-            name = {"crossq": "CrossQ", "td3": "TD3"}[self.algorithm]
-            raise InvalidParameterError(f"sde: {name} explores with its own noise only")
+        if self.algorithm in NO_SDE and self.sde:
+            raise InvalidParameterError(
+                f"sde: {NO_SDE[self.algorithm]} explores with its own noise only"
+            )
         if self.dagger_rounds and not self.warm_start_steps:
             raise InvalidParameterError(
                 f"dagger_rounds={self.dagger_rounds!r} relabels the clone's own rollouts: it "
