@@ -32,6 +32,11 @@ skill start where the stroke starts, so no search over where the operator is alo
 needed; a translation changes no direction. Without invariance the scale is 1 and the
 rotation 0.
 
+The match also reports its fit, ``-1/2 sum_i min(e_i / σ_i, 7)²`` at the best scale and
+rotation (nats; :data:`FIT_CAP`): how far the operator is from the skill in units of the
+skill's own spread, which the fit gate of :mod:`~pourbench.teleop.confidence` compares with
+a calibrated rate per step to tell a known skill from none of the library's.
+
 Units: points in metres, angles in radians, log-densities in nats per step (of an angle,
 so comparable between skills of a library and with a calibrated per-step rate, not with
 the HSMM's feature densities).
@@ -48,6 +53,7 @@ from scipy.ndimage import maximum_filter1d
 from pourbench.errors import InvalidParameterError, check_positive
 
 __all__ = [
+    "FIT_CAP",
     "OUTLIER_SHARE",
     "PRIOR_STEPS",
     "SCALE_STEP",
@@ -68,6 +74,9 @@ SIGMA_FLOOR = 0.02
 """Smallest step-direction spread, rad."""
 SCALE_STEP = 1.02
 """Largest ratio between neighbouring scales of the search grid."""
+FIT_CAP = 7.0
+"""Largest misfit a step adds to :attr:`ShapeMatch.fit`, in spreads (``|e| / σ``): one step
+across a sharp corner, a sample's length off the template's, does not veto a prefix."""
 _GRID_PER_DELTA = 6  # mean-path samples per Δd
 _BINS_PER_DELTA = 0.5  # spread bins per Δd (one bin every 2 Δd)
 
@@ -122,6 +131,9 @@ class ShapeMatch:
             template's directions to the operator's.
         fraction: the operator's arc length over ``s`` as a share of the template, in [0, 1].
         template: which template matched best: 0 the mean path, 1 the skill's reproduction.
+        fit: ``-1/2 sum_i min(e_i / σ_i, FIT_CAP)²`` at that match, nats: the steps'
+            misfit in units of the skill's own spread (the fit gate's score,
+            :mod:`~pourbench.teleop.confidence`).
     """
 
     loglik: float
@@ -130,6 +142,7 @@ class ShapeMatch:
     rotation: float
     fraction: float
     template: int = 0
+    fit: float = 0.0
 
 
 class _Template:
@@ -304,6 +317,7 @@ def match_shape(
         steps[moving] = terms[i]
         s = float(scales[i, 0])
         fraction = min(length / s / template.length, 1.0)
-        best = ShapeMatch(float(steps.sum()), steps, s, float(rotation[i]), fraction, k)
+        fit = -0.5 * float(np.sum(np.minimum(e[i] / sigma[i], FIT_CAP) ** 2))
+        best = ShapeMatch(float(steps.sum()), steps, s, float(rotation[i]), fraction, k, fit)
     assert best is not None
     return best

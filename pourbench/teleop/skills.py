@@ -57,6 +57,9 @@ RECOGNIZERS: tuple[str, ...] = ("hsmm", "shape")
 """How :meth:`SkillLibrary.recognize` scores a partial trajectory: the HSMM's partial
 likelihood (the thesis) or the step directions against the mean path (ours)."""
 
+# how each recognizer's "none of these" meets its skills (pourbench.teleop.confidence.GATES)
+GATE = {"hsmm": "filler", "shape": "fit"}
+
 
 @dataclass(frozen=True)
 class Skill:
@@ -115,6 +118,8 @@ class _Scores:
         fractions: (K,) estimated progress along each skill.
         terms: how many per-sample terms a score sums (the "none" hypothesis' ``n``).
         alignments: label -> similarity onto the points, where the mode made one.
+        fits: (K,) goodness of fit, nats (the shape recognizer's, for the fit gate), or
+            ``None``.
     """
 
     names: list[str]
@@ -123,6 +128,7 @@ class _Scores:
     fractions: np.ndarray
     terms: int
     alignments: dict[str, RigidResult]
+    fits: np.ndarray | None = None
 
 
 class SkillLibrary:
@@ -290,6 +296,7 @@ class SkillLibrary:
             np.array([matches[k].fraction for k in names]),
             pts.shape[0] - 1,  # one term a step
             {best: self._shape_alignment(pts, self.skills[best], matches[best])},
+            np.array([matches[k].fit for k in names]),
         )
 
     def _shape_alignment(self, pts: np.ndarray, skill: Skill, m: ShapeMatch) -> RigidResult:
@@ -381,7 +388,7 @@ class SkillLibrary:
         model = self._none.get(mode)
         sc = self._scores(pts, mode, (model.window,) if model else ())
         ll = sc.logliks
-        post = open_set_posterior(ll, sc.before[:, 0] if model else None, sc.terms, model)
+        post = open_set_posterior(ll, sc.before[:, 0] if model else None, sc.terms, model, sc.fits)
         best = int(np.argmax(ll)) if np.any(np.isfinite(ll)) else 0
         label = sc.names[best]
         out = Recognition(
@@ -415,10 +422,9 @@ class SkillLibrary:
         (at least 2 samples), with the same recognition mode as :meth:`recognize`
         (``recognizer``, ``invariant`` and its limits); later recognitions in that mode
         return the calibrated confidence. Refitting skills drops every calibration. The
-        HSMM recognizer's window ``W`` is chosen among :data:`~pourbench.teleop.confidence.
-        WINDOWS`; the shape recognizer's is the whole trajectory (its score is one
-        alignment of the whole trajectory, so a shorter window is scored under another
-        alignment than the rest).
+        HSMM recognizer's "none" is a filler whose window ``W`` is chosen among
+        :data:`~pourbench.teleop.confidence.WINDOWS`; the shape recognizer's is the fit
+        gate (each skill's misfit in units of its own spread, over the whole trajectory).
 
         Args:
             demos: skill label -> list of (n, D) raw trajectories of that skill (metres),
@@ -468,9 +474,11 @@ class SkillLibrary:
                     n = max(2, round(f * pts.shape[0]))
                     sc = self._scores(pts[:n], mode, windows)
                     examples.append(
-                        CalibrationExample(sc.logliks, sc.before, sc.terms, names.index(label))
+                        CalibrationExample(
+                            sc.logliks, sc.before, sc.terms, names.index(label), sc.fits
+                        )
                     )
-        model = fit_none_model(examples, windows)
+        model = fit_none_model(examples, windows, gate=GATE[recognizer])
         self._none[mode] = model
         self._cache.clear()
         return model
