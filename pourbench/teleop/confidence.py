@@ -24,7 +24,7 @@ log-likelihood gaps between skills are tens of nats), so it cannot gate anything
 
 The fit gate (``NoneModel.gate == "fit"``, the shape recognizer's). A recognizer whose skills
 also report a goodness of fit ``f_k`` (nats, at most 0: the shape recognizer's
-``-1/2 sum_i (e_i / σ_i)²``, each step's misfit in units of the skill's own spread) asks
+``-1/2 sum_i min(e_i / σ_i, 7)²``, each step's misfit in units of the skill's own spread) asks
 whether the prefix is a sample of the skill at all, apart from which skill explains it best.
 With ``pi_k = exp(ll_k) / sum_j exp(ll_j)`` and ``a_k = sigmoid(f_k - n tau)``,
 
