@@ -119,6 +119,7 @@ def test_calibration_is_deterministic_and_refitting_drops_it() -> None:
     a = lib.calibrate(held)
     b = lib.calibrate(held)
     assert a == b and a.window in WINDOWS and np.isfinite(a.tau)
+    assert a.gate == "filler"  # the HSMM recognizer's filler
     assert a.examples == 3 * 2 * 3  # skills x demos x fractions
     assert lib.calibration() == a and lib.calibration(invariant=True) is None
     pts = _prefixes("C", 1)[0]

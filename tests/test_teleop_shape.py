@@ -157,7 +157,8 @@ def test_the_alignment_starts_the_registration_on_the_operator(library) -> None:
 
 
 def test_each_recognizer_has_its_own_calibration(library) -> None:
-    assert library.calibration(invariant=True, recognizer="shape").window is None
+    shape = library.calibration(invariant=True, recognizer="shape")
+    assert shape.window is None and shape.gate == "fit"  # the shape recognizer's fit gate
     assert library.calibration(invariant=True) is None  # the HSMM's was never calibrated
     assert library.calibration(recognizer="shape") is None  # nor the shape's without invariance
     with pytest.raises(InvalidParameterError, match="recognizer='hsmm'"):
