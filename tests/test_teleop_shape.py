@@ -132,7 +132,7 @@ def test_known_letters_are_recognised_turned_and_scaled(library, deg, scale) -> 
     assert all(rec.calibrated for _, rec in recs)
     assert np.mean([rec.label == L for L, rec in recs]) >= 26 / 27
     # a demonstration written less like the others than the library's spread expects is
-    # sometimes left to "none of these" (docs/teleop.md: 94-97 % in the benchmark)
+    # sometimes left to "none of these" (docs/teleop.md, "The fit gate")
     assert np.mean([rec.label == L and rec.confidence >= 0.9 for L, rec in recs]) >= 25 / 27
 
 

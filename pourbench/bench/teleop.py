@@ -172,8 +172,8 @@ TAKEOVER_STEP = 0.1
 HANDBACK_SPEED = 0.03
 
 # CPD stops once sigma^2 changes by less than 0.1 % an iteration (the library's default:
-# 0.01 %): the registered skill lies as close to the operator (docs/teleop.md) in about
-# two thirds of the EM iterations.
+# 0.01 %); what that costs the registration and saves in time: docs/teleop.md,
+# "Registration time".
 CPD_TOL = 1e-3
 
 # Open-set classes: a 21-letter library without these 5 letters (a closed-set posterior
@@ -209,9 +209,8 @@ class Job:
 
 # what the calibration copies a letter under (a translation changes no feature)
 CALIBRATION_VARIATIONS = tuple(v for v in VARIATIONS_2D if v.cls != "translated")
-# held-out demonstrations a letter the calibration scores (indices 20, 21, 22): with three
-# instead of one the gate rejects more unknown letters at the same known-letter rate
-# (docs/teleop.md, "The fit gate")
+# held-out demonstrations a letter the calibration scores (indices 20, 21, 22; one against
+# three measured in docs/teleop.md, "The fit gate")
 CALIBRATION_DEMOS = 3
 
 
