@@ -186,6 +186,31 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
     assert not list(out.glob("*.partial*"))
 
 
+def test_a_linear_schedule_falls_to_zero_at_the_end_of_the_budget(tmp_path) -> None:
+    """Adam's step size at each update is the learning rate times the share of the step
+    budget left (SB3 updates after each rollout of 64 steps here); a resumed run counts the
+    steps it has taken against the budget it is given (a new run of 256 steps would start at
+    0.875 of the rate, not 0.375)."""
+    import csv
+
+    out = tmp_path / "run"
+    run = [
+        *SMALL,
+        *("--no-icm", "--no-curriculum", "--eval-episodes", "1", "--eval-every-steps", "0"),
+        *("--lr-schedule", "linear", "--learning-rate", "0.001", "--out", str(out)),
+    ]
+    assert main([*run, "--budget-steps", "256"]) == 0
+    assert main([*run, "--budget-steps", "512", "--resume"]) == 0
+    rates = []
+    for session in ("0", "1"):
+        with open(out / "logs" / session / "progress.csv") as f:
+            rows = csv.DictReader(f)
+            rates += [float(r["train/learning_rate"]) for r in rows if r["train/learning_rate"]]
+    # updates at 64, 128 and 192 steps of the 256-step budget, then at 320, 384 and 448 of
+    # the 512-step one (SB3 logs an update with the next rollout, so a session's last is not)
+    assert rates == pytest.approx([0.00075, 0.0005, 0.00025, 0.000375, 0.00025, 0.000125])
+
+
 @pytest.mark.parametrize(
     "kw, words",
     [
@@ -217,6 +242,8 @@ def test_a_tiny_run_trains_checkpoints_resumes_and_plots(tmp_path, capsys) -> No
         ({"dagger_rounds": -1}, "dagger_rounds must be >= 0, got -1"),
         ({"dagger_rounds": 2}, "dagger_rounds=2 relabels .* needs warm_start_steps > 0"),
         ({"learning_rate": 0.0}, "learning_rate must be > 0"),
+        ({"lr_schedule": "cosine"}, r"lr_schedule must be one of \['constant', 'linear'\]"),
+        ({"lr_schedule": "linear", "budget_s": 60.0}, "lr_schedule='linear' runs over the step"),
         ({"target_kl": -0.01}, "target_kl must be >= 0"),
         ({"clone_std": -0.1}, "clone_std must be >= 0"),
         ({"warm_start_lessons": "some"}, "warm_start_lessons must be 'first' or 'all', got 'some'"),

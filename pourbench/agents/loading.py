@@ -46,6 +46,8 @@ OFF_POLICY = ("sac", "tqc", "crossq", "td3")
 """The off-policy learners ``pourbench train`` builds (replay buffer, update-to-data ratio)."""
 NO_SDE = {"crossq": "CrossQ", "td3": "TD3"}
 """The off-policy learners without gSDE, by their written names."""
+LR_SCHEDULES = ("constant", "linear")
+"""How a learner's step size moves over its run (``pourbench train --lr-schedule``)."""
 
 # a saved model's policy class module -> its algorithm
 _ALGORITHMS = {

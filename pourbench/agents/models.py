@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
-from pourbench.agents.loading import NO_SDE, OFF_POLICY
+from pourbench.agents.loading import LR_SCHEDULES, NO_SDE, OFF_POLICY
 from pourbench.errors import InvalidParameterError
 
 HIDDEN = (256, 256, 256)
@@ -81,6 +81,7 @@ def make_model(
     batch_size: int = 256,
     seed: int = 0,
     learning_rate: float = 3e-4,
+    lr_schedule: str = "constant",
     target_kl: float | None = None,
     sde: bool = False,
     utd: float = 0.0,
@@ -96,6 +97,10 @@ def make_model(
             for PPO; SAC's batch from its replay buffer).
         seed: seed of the networks and the sampling.
         learning_rate: Adam's step size (SB3's default 3e-4).
+        lr_schedule: one of :data:`LR_SCHEDULES`: ``"constant"``, or ``"linear"``, the step
+            size falling linearly from ``learning_rate`` at the start to zero at the end of
+            the ``total_timesteps`` that SB3's ``learn`` is given (SB3 counts a resumed run's
+            earlier steps into them, so a resumed run continues the same line).
         target_kl: PPO and RecurrentPPO stop an update's epochs once the policy's KL
             divergence from the rollout's passes this (None: no limit, SB3's default).
         sde: generalized state-dependent exploration (SB3's ``use_sde``), its noise drawn
@@ -107,16 +112,25 @@ def make_model(
         verbose: SB3's verbosity.
 
     Raises:
-        InvalidParameterError: an unknown algorithm.
+        InvalidParameterError: an unknown algorithm or schedule.
     """
     from stable_baselines3 import PPO, SAC, TD3
+    from stable_baselines3.common.utils import LinearSchedule
+
+    if lr_schedule not in LR_SCHEDULES:
+        raise InvalidParameterError(
+            f"lr_schedule must be one of {list(LR_SCHEDULES)}, got {lr_schedule!r}"
+        )
+    rate: Any = learning_rate
+    if lr_schedule == "linear":
+        rate = LinearSchedule(start=learning_rate, end=0.0, end_fraction=1.0)
 
     common: dict[str, Any] = {
         "seed": seed,
         "device": "cpu",
         "verbose": verbose,
         "gamma": GAMMA,
-        "learning_rate": learning_rate,
+        "learning_rate": rate,
         "use_sde": sde,
     }
     extractor = {"features_extractor_class": ScaledObservation}

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from pourbench.agents.loading import NO_SDE, OFF_POLICY
+from pourbench.agents.loading import LR_SCHEDULES, NO_SDE, OFF_POLICY
 from pourbench.errors import (
     InvalidParameterError,
     PourbenchError,
@@ -60,6 +60,7 @@ _SAME_ON_RESUME = (
     "batch_size",
     "icm_eta",
     "learning_rate",
+    "lr_schedule",
     "target_kl",
     "final_error_per_g",
     "residual",
@@ -149,6 +150,10 @@ class TrainArgs:
             rollouts pour the first lesson's liquids, where PPO starts; "all": each rollout
             is split evenly over the lessons (measured in docs/training.md).
         learning_rate: Adam's step size.
+        lr_schedule: "constant", or "linear": the step size at step t of a budget of B
+            steps is learning_rate × (1 − t / B), zero at the end (needs budget_steps; a
+            resume with a larger budget goes on at its new line's value), so that the late
+            updates move a policy that has found a pour less.
         target_kl: PPO and RecurrentPPO stop an update's epochs once the policy has moved
             this far (KL divergence) from the one that collected the rollout (0: no limit);
             a cloned policy's small spread makes its likelihood ratios steep, and a limit
@@ -212,6 +217,7 @@ class TrainArgs:
     init_std: float = 0.0
     warm_start_lessons: str = "first"
     learning_rate: float = 3e-4
+    lr_schedule: str = "constant"
     target_kl: float = 0.0
     final_error_per_g: float = 0.0
     progress_per_g: float = 0.0
@@ -278,6 +284,15 @@ class TrainArgs:
             check_positive("budget_s", self.budget_s)
         for name in ("checkpoint_s", "icm_eta", "learning_rate"):
             check_positive(name, getattr(self, name))
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise InvalidParameterError(
+                f"lr_schedule must be one of {list(LR_SCHEDULES)}, got {self.lr_schedule!r}"
+            )
+        if self.lr_schedule != "constant" and self.budget_steps is None:
+            raise InvalidParameterError(
+                f"lr_schedule={self.lr_schedule!r} runs over the step budget: give "
+                "--budget-steps (a time budget has no end step to decay to)"
+            )
         for name in ("num_envs", "n_steps", "seq_len", "batch_size", "eval_episodes", "threads"):
             check_int(name, getattr(self, name), minimum=1)
         for name in ("seed", "workers", "eval_every_steps", "warm_start_steps", "dagger_rounds"):
@@ -635,10 +650,17 @@ def train(
             print(f"resuming {model_path} at {model.num_timesteps} timesteps")
         else:
             model = make_model(
-                args.algorithm, venv, n_steps=args.n_steps, batch_size=args.batch_size,
-                seed=args.seed, learning_rate=args.learning_rate,
-                target_kl=args.target_kl or None, sde=args.sde, utd=args.utd,
-            )  # fmt: skip
+                args.algorithm,
+                venv,
+                n_steps=args.n_steps,
+                batch_size=args.batch_size,
+                seed=args.seed,
+                learning_rate=args.learning_rate,
+                lr_schedule=args.lr_schedule,
+                target_kl=args.target_kl or None,
+                sde=args.sde,
+                utd=args.utd,
+            )
             if args.residual:  # with a warm start, the cloning then sets the spread anew
                 start_residual(model, args.residual, args.clone_std or None)
             if args.init_std:
