@@ -185,6 +185,18 @@ def test_a_newtonian_liquid_has_no_yield_in_the_shear_cell(mu: float) -> None:
 
 
 @pytest.mark.slow
+def test_the_corrected_pressure_takes_the_packings_stress_out_of_the_shear_cell() -> None:
+    """The 1 Pa·s cell of the strict xfail above with ``corrected_pressure``: a uniform
+    constraint force no longer has a shear part in a sheared packing, and the line through
+    the stresses meets zero rate below :data:`YIELD_LIMIT` of the middle stress, its slope
+    the viscosity within :data:`SLOPE_TOLERANCE` (docs/viscosity.md, "Shear cell")."""
+    config = SolverConfig(xsph_viscosity=0.0, corrected_pressure=True)
+    cell = shear_cell(newtonian(1.0), SHEAR_RATES, config=config)
+    assert abs(cell.yield_share()) <= YIELD_LIMIT, (cell.fit(), cell.stresses)
+    assert cell.fit()[1] == pytest.approx(1.0, rel=SLOPE_TOLERANCE)
+
+
+@pytest.mark.slow
 def test_a_herschel_bulkley_liquid_keeps_its_yield_at_low_rates(yield_cell) -> None:
     """The yield-stress liquid's stress does not fall toward zero with the rate: the line
     through its stresses at 1–30 /s meets zero rate above τ_y, and rises by less than a

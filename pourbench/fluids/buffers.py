@@ -45,6 +45,7 @@ class DeviceBuffers:
     p: wp.array
     p_sorted: wp.array
     delta: wp.array
+    corr: wp.array  # gradient-correction matrices (SolverConfig.corrected_pressure)
     omega: wp.array
     normal: wp.array
     v_tmp: wp.array
@@ -132,6 +133,7 @@ class DeviceBuffers:
             **{name: zeros(n) for name in vectors},
             **{name: zeros(n, float) for name in ("lam", "push", "clear", "density")},
             sums=zeros(n, K.vec5),
+            corr=zeros(n if cfg.corrected_pressure else 1, wp.mat33),
             vsum=zeros(n, wp.vec4),
             wall=zeros(n, K.vec5),
             wall_collider=wp.full(n, -1, dtype=wp.int32, device=device),

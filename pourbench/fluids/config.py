@@ -77,6 +77,13 @@ class SolverConfig:
             does. Off, the position update precedes the solve and a liquid that its viscosity
             holds still moves by g dt² a step: viscous pours then depend on the step and a
             resting viscous liquid keeps a jitter of mm/s (docs/viscosity.md).
+        corrected_pressure: multiply each pair's density correction by the mean of its two
+            particles' gradient-correction matrices (tr(M)/3 M⁻¹, M the second moment of the
+            particle's kernel gradients; Bonet & Lok 1999), so that a correction that pushes
+            every particle alike is isotropic whatever the arrangement of its neighbours. A
+            packing sheared under pressure then no longer resists with a stress in
+            proportion to the pressure (docs/viscosity.md, "Shear cell"). The mean keeps a
+            pair's two terms opposite, so momentum is kept.
         shear_passes: solves a step takes for a liquid with a Herschel–Bulkley law, each
             taking the particles' viscosities from the velocities the last returned (Picard
             passes; the first takes them from the velocities to be solved).
@@ -133,6 +140,7 @@ class SolverConfig:
     plug_viscosity_pa_s: float = 1000.0
     shear_passes: int = 2
     viscous_displacement: bool = True
+    corrected_pressure: bool = False
     laplacian_packing: float = 0.897
     viscosity_rate: float = 1.0
     xsph_viscosity: float = 0.01
@@ -173,7 +181,7 @@ class SolverConfig:
             raise InvalidParameterError(
                 f"pair_lists must be 'auto', 'half' or 'full', got {self.pair_lists!r}"
             )
-        for name in ("graph", "viscous_displacement"):
+        for name in ("graph", "viscous_displacement", "corrected_pressure"):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameterError(
                     f"{name} must be True or False, got {getattr(self, name)!r}"

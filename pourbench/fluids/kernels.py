@@ -512,6 +512,7 @@ class PairKernels(NamedTuple):
     compute_delta: wp.Kernel
     vorticity_and_normals: wp.Kernel
     filter_sums: wp.Kernel
+    gradient_moments: wp.Kernel
 
 
 def pair_kernels(half: bool) -> PairKernels:
@@ -755,13 +756,19 @@ def pair_kernels(half: bool) -> PairKernels:
         band: float,
         world: wp.array(dtype=wp.int32),
         active: wp.array(dtype=wp.int32),
+        corr: wp.array(dtype=wp.mat33),
+        corrected: int,
         delta: wp.array(dtype=wp.vec3),
     ):
         """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi), s_corr's offset weighted by the
         pair's share of a free surface (:func:`pair_lambda`, from ``density``: ρ/ρ0 of the
         same iteration); half lists read the pair terms cached by :func:`density_sums` and add
         each pair to both particles, full lists recompute them (``delta`` is zero on entry;
-        :func:`apply_delta` clears it). Worlds no longer ``active`` are skipped."""
+        :func:`apply_delta` clears it). Worlds no longer ``active`` are skipped.
+
+        With ``corrected`` (``SolverConfig.corrected_pressure``) a pair's term is multiplied by
+        the mean of its particles' matrices in ``corr`` (:func:`correction_matrices`), which
+        keeps the two particles' terms opposite."""
         i = wp.tid()
         if active[world[i]] == 0:
             return
@@ -772,8 +779,11 @@ def pair_kernels(half: bool) -> PairKernels:
         dp = wp.vec3(0.0)
         k = nbr_start[i]
         k_end = k + nbr_count[i] * stride
+        ci = wp.identity(n=3, dtype=float)
+        if corrected != 0:
+            ci = corr[i]
         if wp.static(not half):  # four neighbours an iteration, as in density_sums
-            while k + 3 * stride < k_end:
+            while corrected == 0 and k + 3 * stride < k_end:
                 j0, j1 = nbr[k], nbr[k + stride]
                 j2, j3 = nbr[k + 2 * stride], nbr[k + 3 * stride]
                 r0, r1, r2, r3 = pi - p[j0], pi - p[j1], pi - p[j2], pi - p[j3]
@@ -796,6 +806,8 @@ def pair_kernels(half: bool) -> PairKernels:
                 t = r * ((lam_sum + e[1]) * e[0])
             else:
                 t = delta_term(r, lam_sum, h, grad_c, scorr)
+            if corrected != 0:
+                t = 0.5 * ((ci + corr[j]) * t)
             dp += t
             if wp.static(half):
                 wp.atomic_sub(delta, j, t)
@@ -961,6 +973,39 @@ def pair_kernels(half: bool) -> PairKernels:
             eta[i] = acc_eta
             dv_sum[i] = acc_dv
 
+    @wp.kernel
+    def gradient_moments(
+        p: wp.array(dtype=wp.vec3),
+        nbr: wp.array(dtype=wp.int32),
+        nbr_start: wp.array(dtype=wp.int32),
+        nbr_count: wp.array(dtype=wp.int32),
+        stride: int,
+        h: float,
+        grad_c: float,
+        corr: wp.array(dtype=wp.mat33),
+    ):
+        """Second moment of each particle's kernel gradients, M_i = −Σ_j ∇_i W_ij ⊗ r_ij
+        (r_ij = p_i − p_j; symmetric, positive definite with three or more neighbours out of
+        a plane), in the units of the density constraint's gradients. A pair's term is the
+        same for both particles; half lists add it to both (``corr`` zero on entry)."""
+        i = wp.tid()
+        pi = p[i]
+        acc = wp.mat33(0.0)
+        k = nbr_start[i]
+        k_end = k + nbr_count[i] * stride
+        while k < k_end:
+            j = nbr[k]
+            r = pi - p[j]
+            m = wp.outer(r, r) * -spiky_factor(wp.length(r), h, grad_c)
+            acc += m
+            if wp.static(half):
+                wp.atomic_add(corr, j, m)
+            k += stride
+        if wp.static(half):
+            wp.atomic_add(corr, i, acc)
+        else:  # full lists: only this thread writes particle i
+            corr[i] = acc
+
     return PairKernels(
         hash_particles,
         build_neighbours,
@@ -968,11 +1013,32 @@ def pair_kernels(half: bool) -> PairKernels:
         compute_delta,
         vorticity_and_normals,
         filter_sums,
+        gradient_moments,
     )
 
 
 HALF_LISTS = pair_kernels(True)
 FULL_LISTS = pair_kernels(False)
+
+CORRECTION_MIN_RATIO = 0.3
+"""det(M) / (tr(M)/3)³ below which a particle's gradient moments are too one-sided to invert
+(a particle of a thin sheet or a drop): its correction matrix is the identity."""
+
+
+@wp.kernel
+def correction_matrices(corr: wp.array(dtype=wp.mat33)):
+    """Each particle's gradient moments M (:func:`gradient_moments`) become its correction
+    matrix tr(M)/3 · M⁻¹: the inverse that makes Σ_j (M⁻¹ ∇_i W_ij) ⊗ r_ji the identity
+    (Bonet & Lok 1999), scaled to unit mean eigenvalue so that it corrects the direction of a
+    particle's constraint gradients and leaves their size (and the Jacobi step) as it was.
+    The identity where M is nearly singular (:data:`CORRECTION_MIN_RATIO`)."""
+    i = wp.tid()
+    m = corr[i]
+    t = (m[0, 0] + m[1, 1] + m[2, 2]) / 3.0
+    if t <= 0.0 or wp.determinant(m) < CORRECTION_MIN_RATIO * t * t * t:
+        corr[i] = wp.identity(n=3, dtype=float)
+    else:
+        corr[i] = wp.inverse(m) * t
 
 
 # ------------------------------------------------------------------------ collider SDFs

@@ -140,10 +140,25 @@ class StepLaunches:
             [b.x_prev, b.p, b.clear, b.wall, b.wall_collider],
         )
         self.build_neighbours()
+        if cfg.corrected_pressure:
+            self.correct_gradients()
         for _ in range(cfg.iterations):
             self.density_iteration()
         if cfg.max_iterations > cfg.iterations:
             self.update_active()
+
+    def correct_gradients(self) -> None:
+        """Every particle's gradient-correction matrix from its neighbour list
+        (``SolverConfig.corrected_pressure``), for the step's density iterations."""
+        b = self.buf
+        b.corr.zero_()
+        self.launch(
+            "gradient_moments",
+            self.pairk.gradient_moments,
+            [b.p, *b.lists, self.config.h, self.k.grad_c],
+            [b.corr],
+        )
+        self.launch("correction_matrices", K.correction_matrices, [b.corr])
 
     def extra_iteration(self) -> None:
         """One more iteration for the worlds still above ``max_density_error``."""
@@ -220,6 +235,8 @@ class StepLaunches:
                 self.k.surface_band,
                 b.world,
                 b.active,
+                b.corr,
+                int(cfg.corrected_pressure),
             ],
             [b.delta],
         )
