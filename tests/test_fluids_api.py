@@ -900,11 +900,14 @@ def test_fill_at_least_holds_the_mass_asked_for_with_one_particle_to_spare_at_mo
 @pytest.mark.parametrize("mode", ["half", "full"])
 def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: str) -> None:
     """``corrected_pressure``: each particle's matrix is tr(M)/3 · M⁻¹ for its gradient
-    moments M = −Σ_j ∇_i W_ij ⊗ r_ij, summed here over the pairs a k-d tree finds, and the
-    identity where M is too one-sided to invert (three particles in a row, world 1)."""
+    moments M = −Σ_j ∇_i W_ij ⊗ r_ij, summed here over the pairs a k-d tree finds, plus the
+    same moments of the half-space of liquid its nearest wall stands for (integrated here
+    over the ball beyond the wall plane), and the identity where M is too one-sided to
+    invert (three particles in a row, world 1)."""
+    from scipy.integrate import quad
     from scipy.spatial import cKDTree
 
-    from pourbench.fluids.config import rest_sums
+    from pourbench.fluids.config import rest_sums, wall_coef
     from pourbench.fluids.kernels import CORRECTION_MIN_RATIO
 
     s = PBFSolver(2, SolverConfig(corrected_pressure=True, pair_lists=mode))
@@ -927,6 +930,21 @@ def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: st
         term = -grad_c * (h - d) ** 2 / d * np.outer(r, r)
         moments[i] += term
         moments[j] += term
+    density = wall_coef(s.config) / (2.0 * np.pi)  # the wall term's number density
+
+    def beyond(d: float, inward: bool) -> float:
+        """−grad_c n0 ∫ (h − r)²/r (y·n)² or (y·t)² dV over the ball's part beyond the wall,
+        on shells of radius r, in u = cos of the angle from the wall's normal."""
+        part = (lambda u: 2 * np.pi * u**2) if inward else (lambda u: np.pi * (1 - u**2))
+        shell = lambda r: quad(part, d / r, 1.0)[0] * (h - r) ** 2 * r**3  # noqa: E731
+        return -grad_c * density * quad(shell, d, h)[0]
+
+    wall = s.buf.wall.numpy().astype(float)
+    for i in np.flatnonzero(wall[:, 3] > -1.0):  # a collider within h
+        n = wall[i, :3]
+        d = min(max(n @ p[i] - wall[i, 3], 0.0), h)
+        inward, along = beyond(d, True), beyond(d, False)
+        moments[i] += inward * np.outer(n, n) + along * (np.eye(3) - np.outer(n, n))
     mean = np.trace(moments, axis1=1, axis2=2) / 3.0
     invertible = np.linalg.det(moments) >= CORRECTION_MIN_RATIO * mean**3
     assert invertible.sum() > 0.95 * (world == 0).sum()

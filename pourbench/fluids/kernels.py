@@ -397,6 +397,39 @@ def wall_distance(wall: vec5, pi: wp.vec3) -> float:
 
 
 @wp.func
+def cap_integrands(r: float, d: float, h: float) -> wp.vec2:
+    """The integrands in r of :func:`wall_moments`' normal and tangential parts."""
+    w = (h - r) * (h - r)
+    r3, d3 = r * r * r, d * d * d
+    return wp.vec2(
+        w * (r3 - d3) * (2.0 * wp.pi / 3.0),
+        w * (2.0 * r3 / 3.0 - d * r * r + d3 / 3.0) * wp.pi,
+    )
+
+
+@wp.func
+def wall_moments(wall: vec5, pi: wp.vec3, h: float, grad_c: float, wall_coef: float) -> wp.mat33:
+    """The gradient moments (:func:`gradient_moments`) of the rest liquid that the solid
+    beyond a particle's nearest wall replaces, counted at the wall term's number density n0 =
+    ``wall_coef`` / 2π (:func:`wall_sum`) as a half-space (the wall's curvature left out):
+    a n ⊗ n + b (I − n ⊗ n) with a = −grad_c n0 (2π/3) ∫_d^h (h − r)² (r³ − d³) dr and
+    b = −grad_c n0 π ∫_d^h (h − r)² (2r³/3 − d r² + d³/3) dr at the wall distance d (zero
+    beyond h). Three-point Gauss–Legendre integrates these quintics exactly."""
+    n = wp.vec3(wall[0], wall[1], wall[2])
+    d = wp.clamp(wall_distance(wall, pi), 0.0, h)
+    half = 0.5 * (h - d)
+    mid = 0.5 * (h + d)
+    node = half * 0.7745966692414834  # √(3/5)
+    ab = (
+        cap_integrands(mid - node, d, h) * (5.0 / 9.0)
+        + cap_integrands(mid, d, h) * (8.0 / 9.0)
+        + cap_integrands(mid + node, d, h) * (5.0 / 9.0)
+    ) * (half * -grad_c * wall_coef / (2.0 * wp.pi))
+    nn = wp.outer(n, n)
+    return nn * ab[0] + (wp.identity(n=3, dtype=float) - nn) * ab[1]
+
+
+@wp.func
 def density_and_lambda(
     a: vec5, h: float, w0: float, eps: float, wall: vec5, pi: wp.vec3, wall_coef: float
 ) -> wp.vec2:
@@ -982,12 +1015,16 @@ def pair_kernels(half: bool) -> PairKernels:
         stride: int,
         h: float,
         grad_c: float,
+        wall: wp.array(dtype=vec5),
+        wall_coef: float,
         corr: wp.array(dtype=wp.mat33),
     ):
         """Second moment of each particle's kernel gradients, M_i = −Σ_j ∇_i W_ij ⊗ r_ij
         (r_ij = p_i − p_j; symmetric, positive definite with three or more neighbours out of
-        a plane), in the units of the density constraint's gradients. A pair's term is the
-        same for both particles; half lists add it to both (``corr`` zero on entry)."""
+        a plane), in the units of the density constraint's gradients, and the same moment of
+        the liquid its nearest wall's solid stands for (:func:`wall_moments`), as the
+        density constraint counts it. A pair's term is the same for both particles; half
+        lists add it to both (``corr`` zero on entry)."""
         i = wp.tid()
         pi = p[i]
         acc = wp.mat33(0.0)
@@ -1001,6 +1038,7 @@ def pair_kernels(half: bool) -> PairKernels:
             if wp.static(half):
                 wp.atomic_add(corr, j, m)
             k += stride
+        acc += wall_moments(wall[i], pi, h, grad_c, wall_coef)
         if wp.static(half):
             wp.atomic_add(corr, i, acc)
         else:  # full lists: only this thread writes particle i
@@ -1020,7 +1058,7 @@ def pair_kernels(half: bool) -> PairKernels:
 HALF_LISTS = pair_kernels(True)
 FULL_LISTS = pair_kernels(False)
 
-CORRECTION_MIN_RATIO = 0.3
+CORRECTION_MIN_RATIO = wp.constant(0.3)
 """det(M) / (tr(M)/3)³ below which a particle's gradient moments are too one-sided to invert
 (a particle of a thin sheet or a drop): its correction matrix is the identity."""
 

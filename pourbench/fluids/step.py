@@ -155,7 +155,7 @@ class StepLaunches:
         self.launch(
             "gradient_moments",
             self.pairk.gradient_moments,
-            [b.p, *b.lists, self.config.h, self.k.grad_c],
+            [b.p, *b.lists, self.config.h, self.k.grad_c, b.wall, self.k.wall_coef],
             [b.corr],
         )
         self.launch("correction_matrices", K.correction_matrices, [b.corr])
