@@ -12,7 +12,7 @@ from sb3_contrib import RecurrentPPO
 from stable_baselines3 import PPO
 
 from pourbench.agents.evaluate import evaluate, load_sb3_policy
-from pourbench.agents.loading import load_policy
+from pourbench.agents.loading import clipped_mean, load_policy, model_policy
 from pourbench.agents.sb3 import SB3PourVecEnv
 from pourbench.cli import main
 
@@ -33,9 +33,43 @@ def test_a_saved_ppo_model_acts_as_it_did_in_memory(tmp_path, pour_env) -> None:
     model.learn(16)
     path = tmp_path / "model.zip"
     model.save(path)
-    act = load_sb3_policy(path)
+    act, in_memory = load_sb3_policy(path), model_policy(model)
     for obs in _observations(pour_env, 8):
-        np.testing.assert_array_equal(act(obs, False), model.predict(obs, deterministic=True)[0])
+        np.testing.assert_array_equal(act(obs, False), in_memory(obs, False))
+
+
+def test_the_clipped_mean_is_the_mean_of_the_clipped_samples() -> None:
+    """E[clip(u, −1, 1)] in closed form against the mean of a million clipped samples, for
+    means inside, at and beyond the bounds."""
+    import torch
+
+    mean = torch.tensor([0.0, 0.5, 1.0, 1.6, -2.5, 0.3])
+    std = torch.tensor([1.0, 0.3, 0.9, 0.9, 1.2, 1e-4])
+    samples = torch.normal(mean.expand(1_000_000, -1), std.expand(1_000_000, -1))
+    sampled = samples.clamp(-1.0, 1.0).mean(0)
+    exact = clipped_mean(mean, std, torch.tensor(-1.0), torch.tensor(1.0))
+    np.testing.assert_allclose(exact.numpy(), sampled.numpy(), atol=3e-3)
+    assert exact[-1] == pytest.approx(0.3, abs=1e-6)  # no spread: the mean itself
+
+
+def test_a_ppo_model_acts_with_the_mean_of_its_clipped_action(pour_env) -> None:
+    """A PPO policy whose tilt mean lies beyond the bound with a wide spread: SB3's
+    deterministic action clips the mean to the bound, the model's policy acts with what its
+    samples apply on average, the mean of the clipped action (measured here by sampling)."""
+    import torch
+
+    model = PPO("MlpPolicy", pour_env, n_steps=16, batch_size=16, seed=1, device="cpu")
+    with torch.no_grad():
+        model.policy.action_net.weight.zero_()
+        model.policy.action_net.bias.copy_(torch.tensor([0.2, -1.5]))
+        model.policy.log_std.fill_(0.0)  # spread 1
+    obs = _observations(pour_env, 1)[0]
+    assert model.predict(obs, deterministic=True)[0].tolist() == pytest.approx([0.2, -1.0])
+    sampled = np.mean([model.predict(obs, deterministic=False)[0] for _ in range(4000)], axis=0)
+    acted = model_policy(model)(obs, True)
+    np.testing.assert_allclose(acted, sampled, atol=0.03)
+    # −Φ(0.5) + 1 − Φ(2.5) − 1.5 (Φ(2.5) − Φ(0.5)) + φ(0.5) − φ(2.5), where SB3 acts with −1
+    assert acted[1] == pytest.approx(-0.8042, abs=1e-3)
 
 
 def test_a_saved_recurrent_model_keeps_its_memory_within_an_episode(tmp_path, pour_env) -> None:
@@ -44,14 +78,9 @@ def test_a_saved_recurrent_model_keeps_its_memory_within_an_episode(tmp_path, po
     model = RecurrentPPO("MlpLstmPolicy", pour_env, n_steps=16, batch_size=16, seed=1)
     path = tmp_path / "lstm.zip"
     model.save(path)
-    act = load_sb3_policy(path)
+    act, in_memory = load_sb3_policy(path), model_policy(model)
     obs = _observations(pour_env, 6)
-    state, expected = None, []
-    for k, o in enumerate(obs):
-        a, state = model.predict(
-            o, state=state, episode_start=np.array([k == 0]), deterministic=True
-        )
-        expected.append(a)
+    expected = [in_memory(o, k == 0) for k, o in enumerate(obs)]
     for _ in range(2):  # the second pass starts a new episode: the same actions again
         got = [act(o, k == 0) for k, o in enumerate(obs)]
         np.testing.assert_allclose(np.array(got), np.array(expected), rtol=0, atol=1e-6)
@@ -66,9 +95,7 @@ def test_pourbench_eval_pours_with_a_saved_model(tmp_path, pour_env, capsys) -> 
     model.save(path)
     assert main(["eval", "--policy", str(path), "--episodes", "1", "--target-g", "100"]) == 0
     printed = float(re.search(r"episode 0: error\s+([-\d.]+) g", capsys.readouterr().out)[1])
-    in_memory = evaluate(
-        lambda obs, new: model.predict(obs, deterministic=True)[0], 1, 100.0, liquid="water"
-    )
+    in_memory = evaluate(model_policy(model), 1, 100.0, liquid="water")
     assert printed == pytest.approx(in_memory.errors_g[0], abs=0.005)
     assert printed != pytest.approx(evaluate("pd", 1, 100.0, liquid="water").errors_g[0], abs=0.5)
 

@@ -75,13 +75,17 @@ def test_a_saved_zero_residual_model_pours_as_the_pd(tmp_path) -> None:
 
 
 def test_a_loaded_residual_model_adds_its_scaled_action_to_the_pd(tmp_path) -> None:
-    """A head that outputs (0.5, -0.5) everywhere: the action is PD + 0.2 · that."""
+    """A head whose Gaussian has mean (0.5, -0.5) and spread 1 everywhere: the action is
+    PD + 0.2 · the mean of the head's clipped samples (how a saved PPO model acts)."""
+    from pourbench.agents.loading import clipped_mean
+
     act = load_policy(_residual_model(tmp_path, 0.2, (0.5, -0.5)))
     env = SB3PourVecEnv(1, seed=4, **ENV)
     obs = env.reset()
     env.close()
     pd = PDPourer(1)
-    expected = np.clip(pd.act(obs[0]) + 0.2 * np.array([0.5, -0.5]), -1, 1)
+    head = clipped_mean(torch.tensor([0.5, -0.5]), torch.ones(2), -1.0, 1.0).numpy()
+    expected = np.clip(pd.act(obs[0]) + 0.2 * head, -1, 1)
     np.testing.assert_allclose(act(obs[0], True), expected, rtol=0, atol=1e-6)
 
 

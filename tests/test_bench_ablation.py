@@ -38,7 +38,8 @@ def test_the_off_policy_variant_is_td3_on_water_with_the_same_terms() -> None:
     from pourbench.agents.train import TrainArgs
 
     for name in ablation.variant_names():
-        TrainArgs(**ablation.settings(name))  # combinations the training accepts
+        # combinations the training accepts, at the ablation's step budget
+        TrainArgs(**ablation.settings(name), budget_steps=ablation.BUDGET_STEPS)
 
 
 def _run(evals: list[tuple[float, float]], train_s: list[float], pours) -> dict:

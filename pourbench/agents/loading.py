@@ -7,8 +7,11 @@ algorithm is read from the file).
 ``obs`` is one Pour-v0 observation (12 values), the action two values in [-1, 1];
 ``new_episode`` is True on an episode's first step. A recurrent policy keeps its LSTM state
 from call to call and starts afresh when ``new_episode`` is True. Saved models act
-deterministically; a residual model (``pourbench train --residual``) acts on top of its own
-PD baseline, a directed-tilt model (``--directed-tilt``) through its action map.
+deterministically: a PPO or RecurrentPPO model with the mean of the action its Gaussian
+policy applies after the action bounds' clip (:func:`clipped_mean`), an off-policy model
+with SB3's deterministic action. A residual model (``pourbench train --residual``) acts on
+top of its own PD baseline, a directed-tilt model (``--directed-tilt``) through its action
+map.
 """
 
 from __future__ import annotations
@@ -123,28 +126,71 @@ def load_model(path: str | Path, env: Any = None, device: str = "cpu") -> Any:
     return model
 
 
-def model_policy(model: Any) -> Policy:
-    """An SB3 model in memory as ``f(obs, new_episode)`` acting deterministically; a
-    recurrent model's state is kept between calls and cleared when ``new_episode``; a
-    residual model (:mod:`pourbench.agents.residual`) acts on top of its PD baseline, and a
-    directed-tilt model (:mod:`pourbench.agents.directed`) through its map."""
+def clipped_mean(mean: Any, std: Any, low: Any, high: Any) -> Any:
+    """E[clip(u, low, high)] for u ~ N(mean, std²), element by element (torch tensors):
+    low Φ(a) + high (1 − Φ(b)) + mean (Φ(b) − Φ(a)) + std (φ(a) − φ(b)) with
+    a = (low − mean) / std, b = (high − mean) / std."""
+    import torch
+
+    unit = torch.distributions.Normal(0.0, 1.0)
+    a, b = (low - mean) / std, (high - mean) / std
+    cdf_a, cdf_b = unit.cdf(a), unit.cdf(b)
+    pdf_a, pdf_b = unit.log_prob(a).exp(), unit.log_prob(b).exp()
+    return low * cdf_a + high * (1.0 - cdf_b) + mean * (cdf_b - cdf_a) + std * (pdf_a - pdf_b)
+
+
+def _expected_action(model: Any) -> Policy:
+    """A PPO or RecurrentPPO ``model`` acting with the mean of its clipped action.
+
+    Its Gaussian policy samples u around a mean, and the environment receives clip(u) to the
+    action bounds. SB3's deterministic action, clip(mean), is not what the policy does on
+    average once the mean lies near or past a bound: a policy trained from scratch under
+    Algorithm 4 holds its tilt output's mean beyond the bound, where clip(mean) never tilts
+    while its samples pour (docs/training.md). E[clip(u)] is the action the stochastic
+    policy applies on average."""
+    import torch
     from sb3_contrib import RecurrentPPO
+
+    policy = model.policy
+    low = torch.as_tensor(model.action_space.low, dtype=torch.float32)
+    high = torch.as_tensor(model.action_space.high, dtype=torch.float32)
+    recurrent = isinstance(model, RecurrentPPO)
+    state: list[Any] = [None]
+
+    def act(obs: np.ndarray, new: bool) -> np.ndarray:
+        tensor, _ = policy.obs_to_tensor(obs)
+        with torch.no_grad():
+            if recurrent:
+                if new or state[0] is None:
+                    zeros = torch.zeros(policy.lstm_hidden_state_shape)
+                    state[0] = (zeros, zeros.clone())
+                starts = torch.tensor([float(new)])
+                dist, state[0] = policy.get_distribution(tensor, state[0], starts)
+            else:
+                dist = policy.get_distribution(tensor)
+            normal = dist.distribution
+            action = clipped_mean(normal.mean, normal.stddev, low, high)
+        return action.numpy().reshape(model.action_space.shape)
+
+    return act
+
+
+def model_policy(model: Any) -> Policy:
+    """An SB3 model in memory as ``f(obs, new_episode)`` acting deterministically (the
+    module docstring); a recurrent model's state is kept between calls and cleared when
+    ``new_episode``; a residual model (:mod:`pourbench.agents.residual`) acts on top of its
+    PD baseline, and a directed-tilt model (:mod:`pourbench.agents.directed`) through its
+    map."""
+    from sb3_contrib import RecurrentPPO
+    from stable_baselines3 import PPO
 
     from pourbench.agents import directed, residual
 
-    if not isinstance(model, RecurrentPPO):
-        act: Policy = lambda obs, new: model.predict(obs, deterministic=True)[0]  # noqa: E731
+    act: Policy
+    if isinstance(model, PPO | RecurrentPPO):
+        act = _expected_action(model)
     else:
-        state: list[Any] = [None]
-
-        def act(obs: np.ndarray, new: bool) -> np.ndarray:
-            action, state[0] = model.predict(
-                obs,
-                state=None if new else state[0],
-                episode_start=np.array([new]),
-                deterministic=True,
-            )
-            return action
+        act = lambda obs, new: model.predict(obs, deterministic=True)[0]  # noqa: E731
 
     scale = getattr(model, residual.ATTRIBUTE, 0.0)
     if scale:

@@ -7,8 +7,9 @@ budget and the same evaluations:
 * ``ppo``: RecurrentPPO (LSTM) on water in every episode (``--no-icm --no-curriculum``),
   with :data:`DENSE`: Algorithm 5's reward plus the potential-based shaping term and the
   progress reward (every gram of the error paid as the scale moves), and the directed tilt
-  map. Algorithm 5's reward alone never pours within this budget (docs/training.md), which
-  leaves curiosity and the curriculum nothing to add to;
+  map, the step size falling linearly to zero over the budget. Algorithm 5's reward alone
+  never pours within this budget (docs/training.md), which leaves curiosity and the
+  curriculum nothing to add to;
 * ``ppo_icm``: with the curiosity module's intrinsic reward (``--no-curriculum``);
 * ``ppo_icm_curriculum``: with both (the thesis' PourNet, on the same dense reward);
 * ``td3``: TD3 on water (:data:`OFF_POLICY`), the off-policy learner that reached its best
@@ -46,8 +47,14 @@ import numpy as np
 from pourbench.bench._report import git_sha, markdown_table, write_report
 from pourbench.errors import InvalidParameterError
 
-DENSE: dict[str, Any] = {"shaping": 1.0, "progress_per_g": 0.05, "directed_tilt": True}
-"""The reward terms and the tilt map every variant trains with (docs/training.md)."""
+DENSE: dict[str, Any] = {
+    "shaping": 1.0,
+    "progress_per_g": 0.05,
+    "directed_tilt": True,
+    "lr_schedule": "linear",
+}
+"""The reward terms, the tilt map and the step size's fall to zero over the budget that every
+variant trains with (docs/training.md)."""
 VARIANTS: dict[str, dict[str, bool]] = {
     "ppo": {"icm": False, "curriculum": False},
     "ppo_icm": {"icm": True, "curriculum": False},
