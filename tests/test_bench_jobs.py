@@ -42,3 +42,49 @@ def test_a_log_broken_before_its_last_line_is_a_clear_error(tmp_path) -> None:
     with pytest.raises(PourbenchError, match="line 2"):
         run_jobs(lambda v: {"value": v}, [(1,), (2,), (3,)], log, "sha", "jobs")
     assert log.read_text() == text
+
+
+def test_pool_workers_leave_when_their_parent_is_killed(tmp_path) -> None:
+    """A bench killed by SIGTERM (a scheduler, ``kill``) leaves no worker behind: each
+    exits within seconds, where it would have slept through its minute-long job."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    (tmp_path / "napping.py").write_text(
+        "import os, pathlib, time\n"
+        "def nap(k):\n"
+        f"    pathlib.Path({str(tmp_path)!r}, f'worker-{{os.getpid()}}').touch()\n"
+        "    time.sleep(60)\n"
+        "    return {}\n"
+    )
+    script = (
+        "from pathlib import Path\n"
+        "from napping import nap\n"
+        "from pourbench.bench._jobs import run_jobs\n"
+        f"run_jobs(nap, [(k,) for k in range(4)], Path({str(tmp_path)!r}) / 'log', 'sha',"
+        " 'naps', workers=2)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
+    bench = subprocess.Popen([sys.executable, "-c", script], env=env, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while len(list(tmp_path.glob("worker-*"))) < 2 and time.monotonic() < deadline:
+        time.sleep(0.2)
+    workers = [int(p.name.split("-")[1]) for p in tmp_path.glob("worker-*")]
+    assert len(workers) == 2
+    bench.send_signal(signal.SIGTERM)
+    bench.wait(timeout=30)
+
+    def alive(pid: int) -> bool:
+        try:
+            state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+        except FileNotFoundError:
+            return False
+        return state != "Z"  # a zombie has exited; nothing may reap it here
+
+    deadline = time.monotonic() + 10
+    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(alive(pid) for pid in workers)

@@ -16,7 +16,10 @@ project installed at the same commit (docs/ray.md).
 from __future__ import annotations
 
 import json
+import os
 import sys
+import threading
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
@@ -159,8 +162,26 @@ def run_jobs(
     return results
 
 
+def _leave_with_parent(parent: int) -> None:
+    """A pool worker's initializer: the worker exits within a second of the process that
+    started it. A parent killed by a signal cannot shut its pool down, and its workers would
+    go on with the jobs already queued to them, then wait for more forever."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
 def _pool_results(fn: Callable[..., dict], todo: list[Job], workers: int) -> Iterator[tuple]:
     context = get_context("spawn")  # fresh interpreters: no forked Warp or torch state
-    with ProcessPoolExecutor(min(workers, len(todo)), mp_context=context) as pool:
+    with ProcessPoolExecutor(
+        min(workers, len(todo)),
+        mp_context=context,
+        initializer=_leave_with_parent,
+        initargs=(os.getpid(),),
+    ) as pool:
         for future in as_completed([pool.submit(_call, fn, j) for j in todo]):
             yield future.result()
