@@ -957,13 +957,13 @@ def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: st
 
 def test_the_corrected_pressure_keeps_momentum() -> None:
     """A weightless blob packed a tenth too tight springs apart under the corrected density
-    solve as under the plain one, and its momentum stays zero: the mean of a pair's two
-    matrices keeps the pair's corrections opposite."""
+    solve as under the plain one, along other paths (the correction acts), and its momentum
+    stays zero: the mean of a pair's two matrices keeps the pair's corrections opposite."""
     g = np.arange(-5, 6) * 0.0045
     x = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
     x = x[np.linalg.norm(x, axis=1) < 0.025] + 0.1
     x += np.random.default_rng(0).normal(0.0, 3e-4, x.shape)  # an irregular packing
-    spread = {}
+    spread, moved = {}, {}
     for corrected in (False, True):
         cfg = SolverConfig(gravity=(0.0, 0.0, 0.0), corrected_pressure=corrected)
         s = PBFSolver(1, cfg)
@@ -972,7 +972,10 @@ def test_the_corrected_pressure_keeps_momentum() -> None:
         s.step(10)
         v = s.velocities().astype(float)
         assert np.linalg.norm(v.sum(axis=0)) < 1e-4 * np.abs(v).sum()
-        spread[corrected] = np.linalg.norm(s.positions() - 0.1, axis=1).mean()
+        moved[corrected] = s.positions().astype(float)
+        spread[corrected] = np.linalg.norm(moved[corrected] - 0.1, axis=1).mean()
     start = np.linalg.norm(x - 0.1, axis=1).mean()
+    apart = np.linalg.norm(moved[True] - moved[False], axis=1)
+    assert np.median(apart) > 1e-5, np.median(apart)  # a hundredth of a millimetre
     assert spread[True] > start and spread[False] > start
     assert spread[True] == pytest.approx(spread[False], rel=0.05)

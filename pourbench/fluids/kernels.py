@@ -543,6 +543,7 @@ class PairKernels(NamedTuple):
     build_neighbours: wp.Kernel
     density_sums: wp.Kernel
     compute_delta: wp.Kernel
+    compute_delta_corrected: wp.Kernel  # SolverConfig.corrected_pressure
     vorticity_and_normals: wp.Kernel
     filter_sums: wp.Kernel
     gradient_moments: wp.Kernel
@@ -773,82 +774,87 @@ def pair_kernels(half: bool) -> PairKernels:
             lam[i] = d[1]
             record_worst(worst, world[i], d[0])
 
-    @wp.kernel
-    def compute_delta(
-        p: wp.array(dtype=wp.vec3),
-        nbr: wp.array(dtype=wp.int32),
-        nbr_start: wp.array(dtype=wp.int32),
-        nbr_count: wp.array(dtype=wp.int32),
-        stride: int,
-        lam: wp.array(dtype=float),
-        density: wp.array(dtype=float),
-        pair: wp.array(dtype=wp.vec2),
-        h: float,
-        grad_c: float,
-        scorr: wp.vec4,
-        band: float,
-        world: wp.array(dtype=wp.int32),
-        active: wp.array(dtype=wp.int32),
-        corr: wp.array(dtype=wp.mat33),
-        corrected: int,
-        delta: wp.array(dtype=wp.vec3),
-    ):
-        """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi), s_corr's offset weighted by the
-        pair's share of a free surface (:func:`pair_lambda`, from ``density``: ρ/ρ0 of the
-        same iteration); half lists read the pair terms cached by :func:`density_sums` and add
-        each pair to both particles, full lists recompute them (``delta`` is zero on entry;
-        :func:`apply_delta` clears it). Worlds no longer ``active`` are skipped.
+    def delta_kernel(corrected: bool) -> wp.Kernel:
+        """:func:`compute_delta`, with the pair terms corrected (``corrected``, a compile-time
+        constant: the plain solve pays nothing for the option) or not."""
 
-        With ``corrected`` (``SolverConfig.corrected_pressure``) a pair's term is multiplied by
-        the mean of its particles' matrices in ``corr`` (:func:`correction_matrices`), which
-        keeps the two particles' terms opposite."""
-        i = wp.tid()
-        if active[world[i]] == 0:
-            return
-        pi = p[i]
-        li = lam[i]
-        di = density[i]
-        koff = scorr[0] * scorr[3]
-        dp = wp.vec3(0.0)
-        k = nbr_start[i]
-        k_end = k + nbr_count[i] * stride
-        ci = wp.identity(n=3, dtype=float)
-        if corrected != 0:
-            ci = corr[i]
-        if wp.static(not half):  # four neighbours an iteration, as in density_sums
-            while corrected == 0 and k + 3 * stride < k_end:
-                j0, j1 = nbr[k], nbr[k + stride]
-                j2, j3 = nbr[k + 2 * stride], nbr[k + 3 * stride]
-                r0, r1, r2, r3 = pi - p[j0], pi - p[j1], pi - p[j2], pi - p[j3]
-                l0 = pair_lambda(li, lam[j0], di, density[j0], koff, band)
-                l1 = pair_lambda(li, lam[j1], di, density[j1], koff, band)
-                l2 = pair_lambda(li, lam[j2], di, density[j2], koff, band)
-                l3 = pair_lambda(li, lam[j3], di, density[j3], koff, band)
-                dp += delta_term(r0, l0, h, grad_c, scorr)
-                dp += delta_term(r1, l1, h, grad_c, scorr)
-                dp += delta_term(r2, l2, h, grad_c, scorr)
-                dp += delta_term(r3, l3, h, grad_c, scorr)
-                k += 4 * stride
-        while k < k_end:
-            j = nbr[k]
-            r = pi - p[j]
-            lam_sum = pair_lambda(li, lam[j], di, density[j], koff, band)
-            t = wp.vec3(0.0)
+        @wp.kernel
+        def compute_delta(
+            p: wp.array(dtype=wp.vec3),
+            nbr: wp.array(dtype=wp.int32),
+            nbr_start: wp.array(dtype=wp.int32),
+            nbr_count: wp.array(dtype=wp.int32),
+            stride: int,
+            lam: wp.array(dtype=float),
+            density: wp.array(dtype=float),
+            pair: wp.array(dtype=wp.vec2),
+            h: float,
+            grad_c: float,
+            scorr: wp.vec4,
+            band: float,
+            world: wp.array(dtype=wp.int32),
+            active: wp.array(dtype=wp.int32),
+            corr: wp.array(dtype=wp.mat33),
+            delta: wp.array(dtype=wp.vec3),
+        ):
+            """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi), s_corr's offset weighted by the
+            pair's share of a free surface (:func:`pair_lambda`, from ``density``: ρ/ρ0 of the
+            same iteration); half lists read the pair terms cached by :func:`density_sums` and
+            add each pair to both particles, full lists recompute them (``delta`` is zero on
+            entry; :func:`apply_delta` clears it). Worlds no longer ``active`` are skipped.
+
+            Corrected (``SolverConfig.corrected_pressure``), a pair's term is multiplied by the
+            mean of its particles' matrices in ``corr`` (:func:`correction_matrices`), which
+            keeps the two particles' terms opposite; the plain kernel does not read ``corr``."""
+            i = wp.tid()
+            if active[world[i]] == 0:
+                return
+            pi = p[i]
+            li = lam[i]
+            di = density[i]
+            koff = scorr[0] * scorr[3]
+            dp = wp.vec3(0.0)
+            k = nbr_start[i]
+            k_end = k + nbr_count[i] * stride
+            if wp.static(corrected):
+                ci = corr[i]
+            if wp.static(not half and not corrected):
+                # four neighbours an iteration, as in density_sums
+                while k + 3 * stride < k_end:
+                    j0, j1 = nbr[k], nbr[k + stride]
+                    j2, j3 = nbr[k + 2 * stride], nbr[k + 3 * stride]
+                    r0, r1, r2, r3 = pi - p[j0], pi - p[j1], pi - p[j2], pi - p[j3]
+                    l0 = pair_lambda(li, lam[j0], di, density[j0], koff, band)
+                    l1 = pair_lambda(li, lam[j1], di, density[j1], koff, band)
+                    l2 = pair_lambda(li, lam[j2], di, density[j2], koff, band)
+                    l3 = pair_lambda(li, lam[j3], di, density[j3], koff, band)
+                    dp += delta_term(r0, l0, h, grad_c, scorr)
+                    dp += delta_term(r1, l1, h, grad_c, scorr)
+                    dp += delta_term(r2, l2, h, grad_c, scorr)
+                    dp += delta_term(r3, l3, h, grad_c, scorr)
+                    k += 4 * stride
+            while k < k_end:
+                j = nbr[k]
+                r = pi - p[j]
+                lam_sum = pair_lambda(li, lam[j], di, density[j], koff, band)
+                t = wp.vec3(0.0)
+                if wp.static(half):
+                    e = pair[k]
+                    t = r * ((lam_sum + e[1]) * e[0])
+                else:
+                    t = delta_term(r, lam_sum, h, grad_c, scorr)
+                if wp.static(corrected):
+                    t = 0.5 * ((ci + corr[j]) * t)
+                dp += t
+                if wp.static(half):
+                    wp.atomic_sub(delta, j, t)
+                k += stride
             if wp.static(half):
-                e = pair[k]
-                t = r * ((lam_sum + e[1]) * e[0])
-            else:
-                t = delta_term(r, lam_sum, h, grad_c, scorr)
-            if corrected != 0:
-                t = 0.5 * ((ci + corr[j]) * t)
-            dp += t
-            if wp.static(half):
-                wp.atomic_sub(delta, j, t)
-            k += stride
-        if wp.static(half):
-            wp.atomic_add(delta, i, dp)
-        else:  # full lists: only this thread writes particle i
-            delta[i] = dp
+                wp.atomic_add(delta, i, dp)
+            else:  # full lists: only this thread writes particle i
+                delta[i] = dp
+
+        return compute_delta
 
     @wp.kernel
     def vorticity_and_normals(
@@ -1048,7 +1054,8 @@ def pair_kernels(half: bool) -> PairKernels:
         hash_particles,
         build_neighbours,
         density_sums,
-        compute_delta,
+        delta_kernel(False),
+        delta_kernel(True),
         vorticity_and_normals,
         filter_sums,
         gradient_moments,

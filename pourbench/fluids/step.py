@@ -220,9 +220,11 @@ class StepLaunches:
                 ],
                 [b.lam, b.density, b.worst],
             )
+        pairk = self.pairk
+        delta = pairk.compute_delta_corrected if cfg.corrected_pressure else pairk.compute_delta
         self.launch(
             "compute_delta" + tag,
-            self.pairk.compute_delta,
+            delta,
             [
                 b.p,
                 *b.lists,
@@ -236,7 +238,6 @@ class StepLaunches:
                 b.world,
                 b.active,
                 b.corr,
-                int(cfg.corrected_pressure),
             ],
             [b.delta],
         )

@@ -283,7 +283,12 @@ def _crossing(own: tuple[float, float], other: tuple[float, float]) -> float:
     a = 0.5 / s2**2 - 0.5 / s1**2
     b = m1 / s1**2 - m2 / s2**2
     c = 0.5 * m2**2 / s2**2 - 0.5 * m1**2 / s1**2 + np.log(s2 / s1)
-    roots = np.roots([a, b, c]) if abs(a) > 1e-12 else np.array([-c / b])
+    if abs(a) > 1e-12:
+        roots = np.roots([a, b, c])
+    elif abs(b) > 1e-12:
+        roots = np.array([-c / b])
+    else:  # the same normal twice: equal everywhere
+        return 0.5 * (lo + hi)
     inside = [r.real for r in np.atleast_1d(roots) if r.imag == 0.0 and lo <= r.real <= hi]
     if inside:
         return float(inside[0])
