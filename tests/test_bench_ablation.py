@@ -147,3 +147,42 @@ def test_quick_ablation_trains_every_variant_and_reads_them_back(tmp_path, monke
     capsys.readouterr()
     assert ablation.run(args) == 0
     assert capsys.readouterr().err.count("read back") == len(ablation.variant_names())
+
+
+def test_a_finished_run_keeps_a_record_that_a_fresh_clone_reads_back(tmp_path, monkeypatch):
+    """A full run that reaches the budget writes its result and curves beside the report; a
+    clone without the runs folder reads the record back instead of training, and a record of
+    other settings is refused like a run."""
+    trained = []
+
+    def train_once(name, seed, quick, runs):
+        out = runs / "full" / name / f"seed{seed}"
+        (out / "logs" / "0").mkdir(parents=True)
+        (out / "logs" / "0" / "progress.csv").write_text(
+            "time/total_timesteps,eval/mean_abs_error_g,eval/train_s,pour/error_g\n"
+            "100000,40.5,1800,\n200000,9.5,3600,12.0\n"
+        )
+        trained.append((name, seed))
+        args = {**ablation.settings(name), "budget_steps": ablation.BUDGET_STEPS}
+        args |= {"eval_liquid": "water", "out": str(out)}
+        return {"timesteps": ablation.BUDGET_STEPS, "args": args, "mean_abs_error_g": 9.5}
+
+    monkeypatch.setattr(ablation, "train_variant", train_once)
+    records = tmp_path / "lb" / ablation.RECORDS
+    result, series = ablation.finished_run("ppo", 1, False, tmp_path / "runs", records)
+    assert trained == [("ppo", 1)] and result["mean_abs_error_g"] == 9.5
+    assert series["eval/mean_abs_error_g"] == [(100000.0, 40.5), (200000.0, 9.5)]
+    assert (records / "ppo-seed1.json").is_file()
+
+    import shutil
+
+    shutil.rmtree(tmp_path / "runs")  # a fresh clone: the record alone
+    again = ablation.finished_run("ppo", 1, False, tmp_path / "runs", records)
+    assert trained == [("ppo", 1)] and again == (result, series)
+
+    record = json.loads((records / "ppo-seed1.json").read_text())
+    record["result"]["args"]["icm"] = True
+    (records / "ppo-seed1.json").write_text(json.dumps(record))
+    with pytest.raises(InvalidParameterError, match=r"ppo-seed1\.json.*icm=True, not False"):
+        ablation.finished_run("ppo", 1, False, tmp_path / "runs", records)
+    assert trained == [("ppo", 1)]

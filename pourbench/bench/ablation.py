@@ -29,7 +29,11 @@ seed's error reached :data:`TARGET_G`. The budget (:data:`BUDGET_STEPS`) is chos
 the twelve runs take about 8 hours of a 2-core machine (docs/training.md). The runs live in
 ``runs/ablation/full/<variant>/seed<k>/``; a stopped ablation resumes each run from its last
 checkpoint, and a finished run is read back, not trained again (one trained with other
-settings than its variant's is refused). ``--quick``: seed 0 alone, 256 steps a run.
+settings than its variant's is refused). A finished full run also keeps its record (its
+result and its curves) in ``<out>/ablation_runs/<variant>-seed<k>.json`` beside the report,
+which is committed with it: a fresh clone reads the finished runs back from there and trains
+only the runs that have none, so the ablation resumes run by run across machines whose
+``runs/`` folder is gone. ``--quick``: seed 0 alone, 256 steps a run, no records.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ import numpy as np
 
 from pourbench.bench._report import git_sha, markdown_table, write_report
 from pourbench.errors import InvalidParameterError
+from pourbench.outputs import write_text_atomic
 
 DENSE: dict[str, Any] = {
     "shaping": 1.0,
@@ -83,6 +88,8 @@ TARGET_G = 10.0
 EVAL_LIQUID = "water"
 QUICK = {"budget_steps": 256, "num_envs": 2, "n_steps": 32, "batch_size": 64}
 RUNS = Path("runs") / "ablation"
+RECORDS = "ablation_runs"
+"""The folder beside the report that keeps each finished full run's record."""
 
 
 def variant_names() -> list[str]:
@@ -97,10 +104,40 @@ def settings(name: str) -> dict[str, Any]:
     return dict(OFF_POLICY[name])
 
 
-def train_variant(name: str, seed: int, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
-    """Train (or resume, or read back) one variant with one seed; its ``result.json``."""
+def _steps(quick: bool) -> int:
+    return QUICK["budget_steps"] if quick else BUDGET_STEPS
+
+
+def _refuse_other(done: dict[str, Any], name: str, where: str) -> None:
+    """Raise unless the finished run ``done`` (a ``result.json``) was trained with variant
+    ``name``'s settings and evaluated on :data:`EVAL_LIQUID`; ``where`` names it."""
     from dataclasses import fields
 
+    from pourbench.agents.train import TrainArgs
+
+    names = {f.name for f in fields(TrainArgs)}
+    had = TrainArgs(**{k: v for k, v in done["args"].items() if k in names})
+    if had.eval_liquids() != (EVAL_LIQUID,):
+        raise InvalidParameterError(
+            f"ablation: the run in {where!r} was evaluated on "
+            f"{', '.join(had.eval_liquids())}, not {EVAL_LIQUID}; move it away to train "
+            "the variant anew"
+        )
+    differ = {
+        k: (getattr(had, k), v)
+        for k, v in settings(name).items()
+        if k != "num_envs" and getattr(had, k) != v
+    }
+    if differ:
+        said = ", ".join(f"{k}={a!r}, not {b!r}" for k, (a, b) in differ.items())
+        raise InvalidParameterError(
+            f"ablation: the run in {where!r} was trained with {said}; move it away "
+            "to train the variant anew"
+        )
+
+
+def train_variant(name: str, seed: int, quick: bool, runs: Path = RUNS) -> dict[str, Any]:
+    """Train (or resume, or read back) one variant with one seed; its ``result.json``."""
     from pourbench.agents.train import TrainArgs, train
 
     out = runs / ("quick" if quick else "full") / name / f"seed{seed}"
@@ -109,25 +146,7 @@ def train_variant(name: str, seed: int, quick: bool, runs: Path = RUNS) -> dict[
     result = out / "result.json"
     if result.is_file():
         done = json.loads(result.read_text())
-        names = {f.name for f in fields(TrainArgs)}
-        had = TrainArgs(**{k: v for k, v in done["args"].items() if k in names})
-        if had.eval_liquids() != (EVAL_LIQUID,):
-            raise InvalidParameterError(
-                f"ablation: the run in {str(out)!r} was evaluated on "
-                f"{', '.join(had.eval_liquids())}, not {EVAL_LIQUID}; move it away to train "
-                "the variant anew"
-            )
-        differ = {
-            k: (getattr(had, k), v)
-            for k, v in settings(name).items()
-            if k != "num_envs" and getattr(had, k) != v
-        }
-        if differ:
-            said = ", ".join(f"{k}={a!r}, not {b!r}" for k, (a, b) in differ.items())
-            raise InvalidParameterError(
-                f"ablation: the run in {str(out)!r} was trained with {said}; move it away "
-                "to train the variant anew"
-            )
+        _refuse_other(done, name, str(out))
         if done["timesteps"] >= steps:
             print(f"ablation: {name} seed {seed} read back from {result}", file=sys.stderr)
             return done
@@ -154,6 +173,31 @@ Series = list[tuple[float, float]]
 KEYS = ("eval/mean_abs_error_g", "eval/train_s", "pour/error_g")
 """What a run's curves hold: its evaluations' error and training wall time (s), and the
 training episodes' error, each against environment steps."""
+
+
+def finished_run(
+    name: str, seed: int, quick: bool, runs: Path = RUNS, records: Path | None = None
+) -> tuple[dict[str, Any], dict[str, Series]]:
+    """One variant's run with one seed, finished: its ``result.json`` and its :func:`curves`.
+
+    With ``records`` (a folder), a record ``<records>/<name>-seed<seed>.json`` of a run that
+    reached the budget is read back without ``runs`` (a record of other settings is refused,
+    as a run is); otherwise the run is trained, resumed or read back from ``runs``
+    (:func:`train_variant`) and its record written there."""
+    record = None if records is None else records / f"{name}-seed{seed}.json"
+    if record is not None and record.is_file():
+        kept = json.loads(record.read_text())
+        _refuse_other(kept["result"], name, str(record))
+        if kept["result"]["timesteps"] >= _steps(quick):
+            print(f"ablation: {name} seed {seed} read back from {record}", file=sys.stderr)
+            series = {k: [(float(s), float(v)) for s, v in kept["curves"].get(k, [])] for k in KEYS}
+            return kept["result"], series
+    result = train_variant(name, seed, quick, runs)
+    series = curves(Path(result["args"]["out"]))
+    if record is not None:
+        record.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(record, json.dumps({"result": result, "curves": series}, indent=1) + "\n")
+    return result, series
 
 
 def curves(out: Path) -> dict[str, Series]:
@@ -263,12 +307,15 @@ def rows_of(
 def run(args: argparse.Namespace) -> int:
     sha = git_sha()
     seeds = SEEDS[:1] if args.quick else SEEDS
-    results = {
-        name: [train_variant(name, k, args.quick) for k in seeds] for name in variant_names()
-    }
-    runs = {name: [curves(Path(r["args"]["out"])) for r in rs] for name, rs in results.items()}
-    rows = rows_of(results, runs)
     out = Path(args.out)
+    records = None if args.quick or args.no_write else out / RECORDS
+    finished = {
+        name: [finished_run(name, k, args.quick, records=records) for k in seeds]
+        for name in variant_names()
+    }
+    results = {name: [r for r, _ in runs] for name, runs in finished.items()}
+    runs = {name: [c for _, c in runs] for name, runs in finished.items()}
+    rows = rows_of(results, runs)
     off = OFF_POLICY["td3"]
     body = "\n".join(
         [
