@@ -309,10 +309,12 @@ def run(args: argparse.Namespace) -> int:
     seeds = SEEDS[:1] if args.quick else SEEDS
     out = Path(args.out)
     records = None if args.quick or args.no_write else out / RECORDS
-    finished = {
-        name: [finished_run(name, k, args.quick, records=records) for k in seeds]
-        for name in variant_names()
+    finished: dict[str, list[tuple[dict[str, Any], dict[str, Series]]]] = {
+        name: [] for name in variant_names()
     }
+    for k in seeds:  # every variant's first seed first: a stopped ablation compares them sooner
+        for name in variant_names():
+            finished[name].append(finished_run(name, k, args.quick, records=records))
     results = {name: [r for r, _ in runs] for name, runs in finished.items()}
     runs = {name: [c for _, c in runs] for name, runs in finished.items()}
     rows = rows_of(results, runs)
