@@ -17,6 +17,7 @@ from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.coupling import MujocoCoupling
 from pourbench.fluids.meshes import check_closed_mesh, convex_hull
 from pourbench.fluids.solver import PBFSolver, cuda_available
+from pourbench.geometry.rotation import inverse_transform_points
 from pourbench.geometry.shapes import BoxShell, RevolvedShell, bottle, bowl, cup
 
 DT = SolverConfig().dt
@@ -902,8 +903,10 @@ def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: st
     """``corrected_pressure``: each particle's matrix is tr(M)/3 · M⁻¹ for its gradient
     moments M = −Σ_j ∇_i W_ij ⊗ r_ij, summed here over the pairs a k-d tree finds, plus the
     same moments of the half-space of liquid its nearest wall stands for (integrated here
-    over the ball beyond the wall plane), and the identity where M is too one-sided to
-    invert (three particles in a row, world 1)."""
+    over the ball beyond the wall plane), plus the solid that half-space leaves out (the
+    cup's inner corner, the floor under the cup: lattice sites within h at the spacing,
+    weighted by the band shares of the shapes' own signed distances), and the identity where
+    M is too one-sided to invert (three particles in a row, world 1)."""
     from scipy.integrate import quad
     from scipy.spatial import cKDTree
 
@@ -945,6 +948,23 @@ def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: st
         d = min(max(n @ p[i] - wall[i, 3], 0.0), h)
         inward, along = beyond(d, True), beyond(d, False)
         moments[i] += inward * np.outer(n, n) + along * (np.eye(3) - np.outer(n, n))
+    spacing = s.config.spacing
+    steps = np.array(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij")).reshape(3, -1).T
+    lattice = steps[np.any(steps != 0, axis=1)] * spacing  # 26 sites, every one within h
+    shape, plane = s.colliders[1].shape, s.colliders[0]
+    corners = 0
+    for i in np.flatnonzero(wall[:, 3] > -1.0):
+        sites = p[i] - lattice
+        local = inverse_transform_points(s.colliders[1].pose, sites)
+        floor = inverse_transform_points(plane.pose, sites)[:, 2]  # a plane's own z
+        sd = np.minimum(shape.sdf(local), floor)
+        band = lambda d: np.clip(0.5 - d / spacing, 0.0, 1.0)  # noqa: E731
+        extra = np.maximum(band(sd) - band(sites @ wall[i, :3] - wall[i, 3]), 0.0)
+        dist = np.linalg.norm(lattice, axis=1)
+        weight = -grad_c * (h - dist) ** 2 / dist * extra * density * spacing**3
+        moments[i] += np.einsum("k,ka,kb->ab", weight, lattice, lattice)
+        corners += extra.max() > 0.25
+    assert corners > 0  # the cup's inner corner is in the sum
     mean = np.trace(moments, axis1=1, axis2=2) / 3.0
     invertible = np.linalg.det(moments) >= CORRECTION_MIN_RATIO * mean**3
     assert invertible.sum() > 0.95 * (world == 0).sum()

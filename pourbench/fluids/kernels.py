@@ -1381,6 +1381,61 @@ def predict(
     wall_collider[i] = index
 
 
+@wp.kernel
+def solid_moments(
+    p: wp.array(dtype=wp.vec3),
+    world: wp.array(dtype=wp.int32),
+    wall: wp.array(dtype=vec5),
+    wall_collider: wp.array(dtype=wp.int32),
+    cols: Colliders,
+    h: float,
+    spacing: float,
+    grad_c: float,
+    wall_coef: float,
+    corr: wp.array(dtype=wp.mat33),
+):
+    """Add to each particle's gradient moments (:func:`gradient_moments`) the solid within h
+    that its nearest wall's half-space (:func:`wall_moments`) leaves out: the other face at a
+    container's inner corner or edge, or another collider.
+
+    The solid is sampled on the lattice sites around the particle at the liquid's spacing s,
+    each a cell of s³ holding liquid at the wall term's number density (:func:`wall_sum`).
+    A site counts with the solid's share of a band one spacing wide about its surface,
+    φ = clamp(1/2 − sd/s, 0, 1) (sd: the least signed distance of the world's colliders),
+    less the nearest wall plane's share in the same band, so that the half-space the wall
+    term already holds is not counted twice and a particle whose solid is that half-space
+    (a flat wall) or inside it (a convex one) gains nothing. The bands make the moments move
+    continuously as the particle moves past the sites."""
+    i = wp.tid()
+    if wall_collider[i] < 0:
+        return
+    pi = p[i]
+    w = world[i]
+    n = wp.vec3(wall[i][0], wall[i][1], wall[i][2])
+    offset = wall[i][3]
+    cell = spacing * spacing * spacing * wall_coef / (2.0 * wp.pi)
+    reach = 2.0 * h
+    acc = wp.mat33(0.0)
+    for a in range(-1, 2):
+        for b in range(-1, 2):
+            for c in range(-1, 2):
+                r = wp.vec3(float(a), float(b), float(c)) * spacing  # r = p_i − site
+                dist = wp.length(r)
+                if dist < 1.0e-9 or dist >= h:
+                    continue
+                site = pi - r
+                half = wp.clamp(0.5 - (wp.dot(n, site) - offset) / spacing, 0.0, 1.0)
+                sd = float(1.0e10)
+                for k in range(cols.world_start[w], cols.world_end[w]):
+                    q = wp.transform_point(wp.transform_inverse(cols.pose[k]), site)
+                    if wp.length(q) - cols.bound[k] < reach:
+                        sd = wp.min(sd, sdf_of(cols, k, q)[0])
+                extra = wp.clamp(0.5 - sd / spacing, 0.0, 1.0) - half
+                if extra > 0.0:
+                    acc += wp.outer(r, r) * (-spiky_factor(dist, h, grad_c) * extra * cell)
+    corr[i] = corr[i] + acc
+
+
 WRENCH_UNIT = wp.constant(1.0e-9)
 """Body reactions are summed as integers of this many N (and N·m): integer sums do not
 depend on the order in which threads add, so coupled runs are reproducible on CUDA too."""

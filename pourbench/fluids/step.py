@@ -158,6 +158,22 @@ class StepLaunches:
             [b.p, *b.lists, self.config.h, self.k.grad_c, b.wall, self.k.wall_coef],
             [b.corr],
         )
+        self.launch(
+            "solid_moments",
+            K.solid_moments,
+            [
+                b.p,
+                b.world,
+                b.wall,
+                b.wall_collider,
+                b.cols,
+                self.config.h,
+                self.config.spacing,
+                self.k.grad_c,
+                self.k.wall_coef,
+            ],
+            [b.corr],
+        )
         self.launch("correction_matrices", K.correction_matrices, [b.corr])
 
     def extra_iteration(self) -> None:
