@@ -902,15 +902,14 @@ def test_fill_at_least_holds_the_mass_asked_for_with_one_particle_to_spare_at_mo
 def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: str) -> None:
     """``corrected_pressure``: each particle's matrix is tr(M)/3 · M⁻¹ for its gradient
     moments M = −Σ_j ∇_i W_ij ⊗ r_ij, summed here over the pairs a k-d tree finds, plus the
-    same moments of the half-space of liquid its nearest wall stands for (integrated here
-    over the ball beyond the wall plane), plus the solid that half-space leaves out (the
-    cup's inner corner, the floor under the cup: lattice sites within h at the spacing,
-    weighted by the band shares of the shapes' own signed distances), and the identity where
-    M is too one-sided to invert (three particles in a row, world 1)."""
-    from scipy.integrate import quad
+    same moments of the solid within h as rest liquid on the lattice sites at the spacing,
+    turned to the nearest wall, each weighted by the solid's share of a band a spacing wide
+    (from the shapes' own signed distances: the cup's wall, its inner corner, the floor under
+    it), and the identity where M is too one-sided to invert (three particles in a row,
+    world 1)."""
     from scipy.spatial import cKDTree
 
-    from pourbench.fluids.config import rest_sums, wall_coef
+    from pourbench.fluids.config import rest_sums
     from pourbench.fluids.kernels import CORRECTION_MIN_RATIO
 
     s = PBFSolver(2, SolverConfig(corrected_pressure=True, pair_lists=mode))
@@ -922,7 +921,7 @@ def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: st
     s.launches.correct_gradients()
     p = s.buf.p.numpy().astype(float)
     got = s.buf.corr.numpy().astype(float)
-    h, grad_c = s.config.h, rest_sums(s.config)[1]
+    h, grad_c, spacing = s.config.h, rest_sums(s.config)[1], s.config.spacing
     moments = np.zeros((len(p), 3, 3))
     world = s.worlds()
     for i, j in cKDTree(p).query_pairs(h):
@@ -933,38 +932,27 @@ def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: st
         term = -grad_c * (h - d) ** 2 / d * np.outer(r, r)
         moments[i] += term
         moments[j] += term
-    density = wall_coef(s.config) / (2.0 * np.pi)  # the wall term's number density
 
-    def beyond(d: float, inward: bool) -> float:
-        """−grad_c n0 ∫ (h − r)²/r (y·n)² or (y·t)² dV over the ball's part beyond the wall,
-        on shells of radius r, in u = cos of the angle from the wall's normal."""
-        part = (lambda u: 2 * np.pi * u**2) if inward else (lambda u: np.pi * (1 - u**2))
-        shell = lambda r: quad(part, d / r, 1.0)[0] * (h - r) ** 2 * r**3  # noqa: E731
-        return -grad_c * density * quad(shell, d, h)[0]
-
+    steps = np.array(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij")).reshape(3, -1).T
+    steps = steps[np.any(steps != 0, axis=1)]  # the 26 sites within h = 2 spacings
+    shape, plane = s.colliders[1].shape, s.colliders[0]
     wall = s.buf.wall.numpy().astype(float)
+    corners = 0
     for i in np.flatnonzero(wall[:, 3] > -1.0):  # a collider within h
         n = wall[i, :3]
-        d = min(max(n @ p[i] - wall[i, 3], 0.0), h)
-        inward, along = beyond(d, True), beyond(d, False)
-        moments[i] += inward * np.outer(n, n) + along * (np.eye(3) - np.outer(n, n))
-    spacing = s.config.spacing
-    steps = np.array(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij")).reshape(3, -1).T
-    lattice = steps[np.any(steps != 0, axis=1)] * spacing  # 26 sites, every one within h
-    shape, plane = s.colliders[1].shape, s.colliders[0]
-    corners = 0
-    for i in np.flatnonzero(wall[:, 3] > -1.0):
-        sites = p[i] - lattice
+        t1 = np.cross(n, [0.0, 1.0, 0.0] if abs(n[0]) > 0.6 else [1.0, 0.0, 0.0])
+        t1 /= np.linalg.norm(t1)
+        r = steps @ np.array([t1, np.cross(n, t1), n]) * spacing  # p_i − site
+        sites = p[i] - r
         local = inverse_transform_points(s.colliders[1].pose, sites)
         floor = inverse_transform_points(plane.pose, sites)[:, 2]  # a plane's own z
-        sd = np.minimum(shape.sdf(local), floor)
-        band = lambda d: np.clip(0.5 - d / spacing, 0.0, 1.0)  # noqa: E731
-        extra = np.maximum(band(sd) - band(sites @ wall[i, :3] - wall[i, 3]), 0.0)
-        dist = np.linalg.norm(lattice, axis=1)
-        weight = -grad_c * (h - dist) ** 2 / dist * extra * density * spacing**3
-        moments[i] += np.einsum("k,ka,kb->ab", weight, lattice, lattice)
-        corners += extra.max() > 0.25
-    assert corners > 0  # the cup's inner corner is in the sum
+        share = np.clip(0.5 - np.minimum(shape.sdf(local), floor) / spacing, 0.0, 1.0)
+        dist = np.linalg.norm(r, axis=1)
+        weight = -grad_c * (h - dist) ** 2 / dist * share
+        moments[i] += np.einsum("k,ka,kb->ab", weight, r, r)
+        # a site of solid on the particle's side of its nearest wall: a corner or an edge
+        corners += np.any((share > 0.25) & (sites @ n - wall[i, 3] > 0.0))
+    assert corners > 0
     mean = np.trace(moments, axis1=1, axis2=2) / 3.0
     invertible = np.linalg.det(moments) >= CORRECTION_MIN_RATIO * mean**3
     assert invertible.sum() > 0.95 * (world == 0).sum()

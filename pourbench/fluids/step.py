@@ -155,7 +155,7 @@ class StepLaunches:
         self.launch(
             "gradient_moments",
             self.pairk.gradient_moments,
-            [b.p, *b.lists, self.config.h, self.k.grad_c, b.wall, self.k.wall_coef],
+            [b.p, *b.lists, self.config.h, self.k.grad_c],
             [b.corr],
         )
         self.launch(
@@ -170,7 +170,6 @@ class StepLaunches:
                 self.config.h,
                 self.config.spacing,
                 self.k.grad_c,
-                self.k.wall_coef,
             ],
             [b.corr],
         )
