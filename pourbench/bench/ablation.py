@@ -25,8 +25,9 @@ steps and against training wall time, and the mean error of the training episode
 in each rollout against steps. The training curve counts every ended episode: the thesis'
 running average (§6.5.1) counts only completed ones, so a policy that never completes an
 episode would have none. The table gives, per variant, the first evaluation step at which each
-seed's error reached :data:`TARGET_G`. The budget (:data:`BUDGET_STEPS`) is chosen so that
-the twelve runs take about 8 hours of a 2-core machine (docs/training.md). The runs live in
+seed's error reached :data:`TARGET_G`. The budget (:data:`BUDGET_STEPS`) is the one at which
+a PPO run has learned to pour (docs/training.md; a PPO run takes about 85 minutes of a 2-core
+machine, so the twelve runs take about 17 hours). The runs live in
 ``runs/ablation/full/<variant>/seed<k>/``; a stopped ablation resumes each run from its last
 checkpoint, and a finished run is read back, not trained again (one trained with other
 settings than its variant's is refused). A finished full run also keeps its record (its
