@@ -181,8 +181,27 @@ def test_a_finished_run_keeps_a_record_that_a_fresh_clone_reads_back(tmp_path, m
     assert trained == [("ppo", 1)] and again == (result, series)
 
     record = json.loads((records / "ppo-seed1.json").read_text())
-    record["result"]["args"]["icm"] = True
-    (records / "ppo-seed1.json").write_text(json.dumps(record))
-    with pytest.raises(InvalidParameterError, match=r"ppo-seed1\.json.*icm=True, not False"):
-        ablation.finished_run("ppo", 1, False, tmp_path / "runs", records)
+    others = [
+        ("icm", True, "icm=True, not False"),
+        ("budget_steps", 400_000, "budget_steps=400000, not 200000"),
+    ]
+    for key, other, said in others:
+        changed = json.loads(json.dumps(record))
+        changed["result"]["args"][key] = other  # another variant, or another step-size fall
+        (records / "ppo-seed1.json").write_text(json.dumps(changed))
+        with pytest.raises(InvalidParameterError, match=rf"ppo-seed1\.json.*{said}"):
+            ablation.finished_run("ppo", 1, False, tmp_path / "runs", records)
     assert trained == [("ppo", 1)]
+
+
+def test_the_committed_records_are_runs_of_the_ablation_as_it_stands() -> None:
+    """Every record in leaderboard/ablation_runs/ was trained with its variant's settings and
+    budget and reached it: the next ablation reads it back rather than refusing it."""
+    from pathlib import Path
+
+    records = Path(__file__).parents[1] / "leaderboard" / ablation.RECORDS
+    for path in sorted(records.glob("*-seed*.json")):
+        name, seed = path.stem.rsplit("-seed", 1)
+        result, series = ablation.finished_run(name, int(seed), False, records=records)
+        assert result["timesteps"] >= ablation.BUDGET_STEPS
+        assert len(series["eval/mean_abs_error_g"]) == 10, path

@@ -109,9 +109,10 @@ def _steps(quick: bool) -> int:
     return QUICK["budget_steps"] if quick else BUDGET_STEPS
 
 
-def _refuse_other(done: dict[str, Any], name: str, where: str) -> None:
+def _refuse_other(done: dict[str, Any], name: str, steps: int, where: str) -> None:
     """Raise unless the finished run ``done`` (a ``result.json``) was trained with variant
-    ``name``'s settings and evaluated on :data:`EVAL_LIQUID`; ``where`` names it."""
+    ``name``'s settings for a budget of ``steps`` (the step size falls to zero over it) and
+    evaluated on :data:`EVAL_LIQUID`; ``where`` names it."""
     from dataclasses import fields
 
     from pourbench.agents.train import TrainArgs
@@ -126,7 +127,7 @@ def _refuse_other(done: dict[str, Any], name: str, where: str) -> None:
         )
     differ = {
         k: (getattr(had, k), v)
-        for k, v in settings(name).items()
+        for k, v in {**settings(name), "budget_steps": steps}.items()
         if k != "num_envs" and getattr(had, k) != v
     }
     if differ:
@@ -147,7 +148,7 @@ def train_variant(name: str, seed: int, quick: bool, runs: Path = RUNS) -> dict[
     result = out / "result.json"
     if result.is_file():
         done = json.loads(result.read_text())
-        _refuse_other(done, name, str(out))
+        _refuse_other(done, name, steps, str(out))
         if done["timesteps"] >= steps:
             print(f"ablation: {name} seed {seed} read back from {result}", file=sys.stderr)
             return done
@@ -188,7 +189,7 @@ def finished_run(
     record = None if records is None else records / f"{name}-seed{seed}.json"
     if record is not None and record.is_file():
         kept = json.loads(record.read_text())
-        _refuse_other(kept["result"], name, str(record))
+        _refuse_other(kept["result"], name, _steps(quick), str(record))
         if kept["result"]["timesteps"] >= _steps(quick):
             print(f"ablation: {name} seed {seed} read back from {record}", file=sys.stderr)
             series = {k: [(float(s), float(v)) for s, v in kept["curves"].get(k, [])] for k in KEYS}
