@@ -74,9 +74,7 @@ def test_each_shipped_policy_pours_100_g_of_water_within_10_g(name) -> None:
     """The training issue's bar for a shipped policy, Table 6.3's measure on five fixed
     seeds: the mean absolute error of 100 g pours of water within 10 g (no policy ships until
     its run finishes: then this runs for each). The mean, not each pour: a single pour's
-    outcome follows the CPU's floating-point path: ``pournet-lstm``'s second pour ended within
-    10 g on the Xeon of its Table 6.3 run (every one of its ten pours did) and ends 18.3 g
-    off on an AMD EPYC (there: 2.72, 18.27, 1.89, 1.38, 0.86 g)."""
+    outcome follows the CPU's floating-point path (docs/training.md, "Shipping a run")."""
     from pourbench.agents.evaluate import evaluate
 
     result = evaluate(name, episodes=5, target_g=100.0, seed=0, liquid="water")

@@ -963,6 +963,31 @@ def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: st
     np.testing.assert_allclose(got[~invertible], np.broadcast_to(np.eye(3), got[~invertible].shape))
 
 
+def test_a_particle_half_a_spacing_from_a_floor_counts_the_lattice_layer_beyond_it() -> None:
+    """A lone particle half a spacing above a floor: its solid's moments are those of the
+    nine lattice sites a spacing below it, in closed form: M_zz = s² [f(s) + 4 f(√2 s) +
+    4 f(√3 s)] and M_xx = M_yy = s² [2 f(√2 s) + 4 f(√3 s)] with f(d) = −grad_c (h − d)² / d,
+    so its correction matrix is tr(M)/3 · M⁻¹. Raised to one and a half spacings, no site
+    lies in the floor: nothing is left to invert (the identity)."""
+    from pourbench.fluids.config import rest_sums
+
+    cfg = SolverConfig(corrected_pressure=True, gravity=(0.0, 0.0, 0.0))
+    s, h, grad_c = cfg.spacing, cfg.h, rest_sums(cfg)[1]
+    f = lambda d: -grad_c * (h - d) ** 2 / d  # noqa: E731
+    zz = s**2 * (f(s) + 4 * f(np.sqrt(2) * s) + 4 * f(np.sqrt(3) * s))
+    xx = s**2 * (2 * f(np.sqrt(2) * s) + 4 * f(np.sqrt(3) * s))
+    expected = (2 * xx + zz) / 3 * np.diag([1 / xx, 1 / xx, 1 / zz])
+    for height, matrix in ((0.5 * s, expected), (1.5 * s, np.eye(3))):
+        solver = PBFSolver(1, cfg)
+        solver.add_collider(0, "plane", [0.0])
+        solver.add_particles(0, np.array([[0.01, 0.02, height]]))
+        solver.step(1)
+        solver.launches.build_neighbours()
+        solver.launches.correct_gradients()
+        assert solver.positions()[0, 2] == pytest.approx(height, abs=1e-7)
+        np.testing.assert_allclose(solver.buf.corr.numpy()[0], matrix, rtol=1e-4, atol=1e-6)
+
+
 def test_the_corrected_pressure_keeps_momentum() -> None:
     """A weightless blob packed a tenth too tight springs apart under the corrected density
     solve as under the plain one, along other paths (the correction acts), and its momentum

@@ -26,8 +26,7 @@ in each rollout against steps. The training curve counts every ended episode: th
 running average (§6.5.1) counts only completed ones, so a policy that never completes an
 episode would have none. The table gives, per variant, the first evaluation step at which each
 seed's error reached :data:`TARGET_G`. The budget (:data:`BUDGET_STEPS`) is the one at which
-a PPO run has learned to pour (docs/training.md; a PPO run takes about 85 minutes of a 2-core
-machine, so the twelve runs take about 17 hours). The runs live in
+a PPO run has learned to pour; docs/training.md has what the twelve runs cost. The runs live in
 ``runs/ablation/full/<variant>/seed<k>/``; a stopped ablation resumes each run from its last
 checkpoint, and a finished run is read back, not trained again (one trained with other
 settings than its variant's is refused). A finished full run also keeps its record (its
@@ -106,6 +105,7 @@ def settings(name: str) -> dict[str, Any]:
 
 
 def _steps(quick: bool) -> int:
+    """The step budget of a run: the quick one's or :data:`BUDGET_STEPS`."""
     return QUICK["budget_steps"] if quick else BUDGET_STEPS
 
 
@@ -144,7 +144,7 @@ def train_variant(name: str, seed: int, quick: bool, runs: Path = RUNS) -> dict[
 
     out = runs / ("quick" if quick else "full") / name / f"seed{seed}"
     size = dict(QUICK) if quick else {"budget_steps": BUDGET_STEPS}
-    steps = size["budget_steps"]
+    steps = _steps(quick)
     result = out / "result.json"
     if result.is_file():
         done = json.loads(result.read_text())

@@ -1379,11 +1379,8 @@ def solid_moments(
     about the solid's surface, φ = clamp(1/2 − sd/s, 0, 1) (:func:`site_share`), so a
     particle a half spacing from a flat wall gets exactly the layer of sites beyond it, and
     the count changes continuously as it moves. The same sites find a container's inner
-    corner and edges and a second collider. A half-space of continuous liquid instead (the
-    density constraint's wall term, :func:`wall_sum`, calibrated on the kernel sum) holds
-    two thirds of the lattice's missing normal moment at a half spacing: the particles of
-    the layer beside a wall would be corrected toward it by about 14 % and packed the
-    denser."""
+    corner and edges and a second collider. Why the lattice and not the density constraint's
+    continuous half-space (:func:`wall_sum`): docs/viscosity.md, "Shear cell"."""
     i = wp.tid()
     if wall_collider[i] < 0:
         return
