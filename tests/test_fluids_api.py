@@ -988,6 +988,40 @@ def test_a_particle_half_a_spacing_from_a_floor_counts_the_lattice_layer_beyond_
         np.testing.assert_allclose(solver.buf.corr.numpy()[0], matrix, rtol=1e-4, atol=1e-6)
 
 
+def test_a_particle_in_a_corner_of_three_colliders_counts_the_sites_of_all_three() -> None:
+    """A lone particle in the corner of three planes (a floor and two walls, each its own
+    collider): its solid's moments are those of the lattice sites, turned to its nearest
+    wall, weighted by the least of the three planes' shares, so more than two colliders near
+    a particle count as one solid."""
+    from pourbench.fluids.config import rest_sums
+
+    cfg = SolverConfig(corrected_pressure=True, gravity=(0.0, 0.0, 0.0))
+    s, h, grad_c = cfg.spacing, cfg.h, rest_sums(cfg)[1]
+    c45 = np.sqrt(0.5)
+    solver = PBFSolver(1, cfg)
+    solver.add_collider(0, "plane", [0.0])  # z = 0
+    solver.add_collider(0, "plane", [0.0], pose=np.array([0, 0, 0, c45, 0, c45, 0]))  # x = 0
+    solver.add_collider(0, "plane", [0.0], pose=np.array([0, 0, 0, c45, -c45, 0, 0]))  # y = 0
+    x = np.array([0.6, 0.7, 0.8]) * s
+    solver.add_particles(0, x[None])
+    solver.step(1)
+    solver.launches.build_neighbours()
+    solver.launches.correct_gradients()
+    x = solver.buf.p.numpy()[0].astype(float)  # where the step left it (moved by < 1 µm)
+    np.testing.assert_allclose(x, np.array([0.6, 0.7, 0.8]) * s, atol=1e-6)
+
+    n, t1 = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, -1.0])  # the x = 0 wall is nearest
+    steps = np.array(np.meshgrid(*[[-1, 0, 1]] * 3, indexing="ij")).reshape(3, -1).T
+    steps = steps[np.any(steps != 0, axis=1)]  # the 26 sites within h = 2 spacings
+    r = steps @ np.array([t1, np.cross(n, t1), n]) * s  # p_i − site
+    share = np.clip(0.5 - (x - r).min(axis=1) / s, 0.0, 1.0)
+    dist = np.linalg.norm(r, axis=1)
+    moments = np.einsum("k,ka,kb->ab", -grad_c * (h - dist) ** 2 / dist * share, r, r)
+    assert (share > 0).sum() > 9  # more than the one wall's layer
+    expected = np.trace(moments) / 3.0 * np.linalg.inv(moments)
+    np.testing.assert_allclose(solver.buf.corr.numpy()[0], expected, rtol=1e-4, atol=1e-6)
+
+
 def test_the_corrected_pressure_keeps_momentum() -> None:
     """A weightless blob packed a tenth too tight springs apart under the corrected density
     solve as under the plain one, along other paths (the correction acts), and its momentum

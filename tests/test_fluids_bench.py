@@ -276,3 +276,34 @@ def test_unknown_bench_device_is_refused() -> None:
 
     with pytest.raises(ValueError, match="device must be 'auto', 'cpu' or 'cuda', got 'gpu'"):
         devices("gpu", quick=True)
+
+
+def test_timed_pours_step_every_case_in_turn_through_the_same_pour() -> None:
+    """Two pours timed against each other take the same steps, one each in turn: the fixed
+    solve uses exactly its ``iterations`` every step, the adaptive one never fewer, and every
+    step but the kernel-loading first is timed."""
+    import dataclasses
+
+    from pourbench.bench.fluids_viscosity import timed_pours
+    from pourbench.envs.core import default_solver_config
+
+    base = default_solver_config()
+    fixed = dataclasses.replace(base, max_iterations=base.iterations)
+    runs = timed_pours({"fixed": ("water", fixed), "adaptive": ("water", base)}, seconds=0.05)
+    steps = round(0.05 / base.dt)
+    for run in runs.values():
+        assert len(run.density_iterations) == steps
+        assert run.seconds > 0.0
+        assert run.ms_per_step == pytest.approx(1e3 * run.seconds / (steps - 1))
+    assert np.all(runs["fixed"].density_iterations == base.iterations)
+    assert np.all(runs["adaptive"].density_iterations >= base.iterations)
+
+
+def test_the_bench_times_the_baseline_beside_the_solver() -> None:
+    """A single-world row carries the baseline's rate, timed in the same run, and the speed-up
+    is the ratio of the two rates."""
+    from pourbench.bench.fluids import run_case
+
+    row = run_case("cpu", 2_000, budget_s=0.0)
+    ratio = row["particle_steps_per_s"] / row["baseline_particle_steps_per_s"]
+    assert row["speedup_vs_baseline"] == pytest.approx(ratio)

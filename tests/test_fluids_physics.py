@@ -37,14 +37,13 @@ DT = SolverConfig().dt
 
 def check_rest(r: RestResult) -> None:
     """190 / 200 / 210 g of water filled into a cup, sampled over 0.9–1.1 s: the density
-    constraint holds in the bulk within 2 %, the mass per volume in a probe inside the liquid
+    constraint holds in the bulk within 2 %, the liquid's mass over the volume below its level
     is within 2 % of 1000 kg/m^3 (the rest sum of the constraint is that of the settled,
-    disordered packing, ``SolverConfig.rest_packing``; with the lattice's sum the probe read
-    1050), and the liquid is still: 99 % of particles below 2 cm/s and the fastest one
-    below 3 cm/s at the median sample (the settling bound itself:
-    :func:`test_water_settles_within_a_second`)."""
+    disordered packing, ``SolverConfig.rest_packing``), and the liquid is still: 99 % of
+    particles below 2 cm/s and the fastest one below 3 cm/s at the median sample (the
+    settling bound itself: :func:`test_water_settles_within_a_second`)."""
     assert r.density_error <= 0.02
-    assert r.bulk_density == pytest.approx(1000.0, rel=0.02), f"{r.bulk_density:.0f} kg/m^3"
+    assert r.level_density == pytest.approx(1000.0, rel=0.02), f"{r.level_density:.0f} kg/m^3"
     assert r.p99_speed <= 0.02, f"p99 speed {r.p99_speed:.4f} m/s"
     assert r.median_max_speed <= 0.03, f"median fastest particle {r.median_max_speed:.4f} m/s"
     # the fastest particle of all samples: peaks reach 3.5–4 cm/s; a particle falling
@@ -90,14 +89,14 @@ def test_water_settles_within_a_second(rest_cpu) -> None:
 
 def test_sleeping_water_is_the_settled_water_within_one_second(rest_cpu) -> None:
     """With FleX's sleepThreshold at 0.5 cm/s the issue's bound holds at 1 s: every particle
-    of every fill below 2 cm/s over 0.9–1.1 s, density error ≤ 2 %, 1000 kg/m³ in the probe.
+    of every fill below 2 cm/s over 0.9–1.1 s, density error ≤ 2 %, 1000 kg/m³ below the level.
     And the water sleeps where it would have settled: each fill's mean height is that of the
     same fill without sleeping at 3 s within 0.1 mm (measured 0.01; the lattice it starts
     from sits 0.34–0.44 mm higher, so a liquid frozen before it settled fails this), and its
     level (99th percentile) within 0.3 mm (the surface's waves at 3 s move it ~0.2 mm)."""
     (asleep,) = rest_in_cup(windows=(REST_WINDOW_S,), sleep_threshold=0.005)
     check_comes_to_rest(asleep)
-    assert asleep.bulk_density == pytest.approx(1000.0, rel=0.02)
+    assert asleep.level_density == pytest.approx(1000.0, rel=0.02)
     awake = rest_cpu[1].solver
     for w in range(len(REST_FILLS_G)):
         za = asleep.solver.positions()[asleep.solver.world_slice(w), 2]

@@ -3,8 +3,9 @@
 A dam-break block (column of water, at most 25 cm tall, released in a tank) at about 2k, 16k
 and 128k particles with 4 density iterations, on the CPU and, when present, CUDA (plus 1M+
 particles, in one world and as many worlds). Each case also times
-:mod:`pourbench.bench.fluids_baseline`, an all-cells-candidates PBF, in the same process, so
-the speed-up is measured, not quoted.
+:mod:`pourbench.bench.fluids_baseline`, an all-cells-candidates PBF, in the same process, a
+step of each in turn, so the speed-up is measured, not quoted. The cost rows time a pour
+against its baseline the same way.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -23,10 +25,11 @@ import warp as wp
 from pourbench.bench._report import devices, markdown_table, report_stem, write_report
 from pourbench.bench.fluids_baseline import BaselinePBF
 from pourbench.bench.fluids_viscosity import (
+    correction_cost,
     falling_ball_check,
     settling_check,
     shear_cell_check,
-    timed_pour,
+    timed_pours,
     viscosity_cost,
 )
 from pourbench.envs.core import default_solver_config
@@ -77,27 +80,31 @@ def _block(n: int, d: float) -> tuple[np.ndarray, BoxShell]:
     return np.stack([X.ravel(), Y.ravel(), Z.ravel()], 1), tank
 
 
-def _time_steps(step: Any, sync: Any, budget_s: float, min_steps: int = 3) -> tuple[float, float]:
-    """Seconds per step, after a warm-up: the median and the fastest of the repeats (on a
-    shared machine the median swings by a third between runs; the fastest step is the
-    steadier measure of the code)."""
-    times = []
+def _time_alternated(
+    steps: Sequence[Callable[[], Any]], sync: Callable[[], Any], budget_s: float, min_steps: int = 3
+) -> list[tuple[float, float]]:
+    """Seconds per step of each of ``steps``, stepped in turn (one step each, so that all see
+    the same machine load) after their warm-up: the median and the fastest of each one's
+    repeats (on a shared machine the median swings by a third between runs; the fastest step
+    is the steadier measure of the code)."""
+    times: list[list[float]] = [[] for _ in steps]
     t_end = time.perf_counter() + budget_s
-    while len(times) < min_steps or (time.perf_counter() < t_end and len(times) < 50):
-        t0 = time.perf_counter()
-        step()
-        sync()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)), float(np.min(times))
+    while len(times[0]) < min_steps or (time.perf_counter() < t_end and len(times[0]) < 50):
+        for step, kept in zip(steps, times, strict=True):
+            t0 = time.perf_counter()
+            step()
+            sync()
+            kept.append(time.perf_counter() - t0)
+    return [(float(np.median(t)), float(np.min(t))) for t in times]
 
 
 def run_case(
     device: str, n: int, worlds: int = 1, budget_s: float = 2.0, pair_lists: str = "auto"
 ) -> dict[str, Any]:
-    """Time the solver and the baseline on the dam-break block; one row of the table. The
-    solver runs a fixed 4 iterations, as the baseline does (no ``max_density_error`` extras).
-    ``neighbours_mean`` is read after the warm-up step, so it does not depend on how many
-    steps the time budget allowed."""
+    """Time the solver and the baseline on the dam-break block, step by step in turn; one row
+    of the table. The solver runs a fixed 4 iterations, as the baseline does (no
+    ``max_density_error`` extras). ``neighbours_mean`` is read after the warm-up step, so it
+    does not depend on how many steps the time budget allowed."""
     cfg = SolverConfig(device=device, iterations=4, max_iterations=4, pair_lists=pair_lists)
     pts, tank = _block(n // worlds, cfg.spacing)
     solver = PBFSolver(worlds, cfg)
@@ -108,7 +115,17 @@ def run_case(
     solver.step()  # the warm-up: kernels loaded, buffers sized; not timed
     sync()
     neighbours = float(solver.neighbour_counts().mean())
-    sec, best = _time_steps(solver.step, sync, budget_s)
+    steps: list[Callable[[], Any]] = [solver.step]
+    base = None
+    if worlds == 1:
+        lo = np.array([-tank.half_x, -tank.half_y, tank.bottom_z])
+        hi = np.array([tank.half_x, tank.half_y, tank.rim_height])
+        base = BaselinePBF(pts, lo, hi, cfg)
+        base.step()
+        sync()
+        steps.append(base.step)
+    timed = _time_alternated(steps, sync, budget_s)
+    sec, best = timed[0]
     total = solver.num_particles
     row: dict[str, Any] = {
         "device": device,
@@ -121,13 +138,8 @@ def run_case(
         "best_particle_steps_per_s": total / best,
         "neighbours_mean": neighbours,
     }
-    if worlds == 1:
-        lo = np.array([-tank.half_x, -tank.half_y, tank.bottom_z])
-        hi = np.array([tank.half_x, tank.half_y, tank.rim_height])
-        base = BaselinePBF(pts, lo, hi, cfg)
-        base.step()
-        sync()
-        bsec, _ = _time_steps(base.step, sync, budget_s)
+    if base is not None:
+        bsec = timed[1][0]
         row["baseline_particle_steps_per_s"] = base.n / bsec
         row["speedup_vs_baseline"] = bsec / sec
     return row
@@ -168,22 +180,18 @@ COLUMNS = [
 def holding_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, Any]]:
     """What the extra iterations of ``SolverConfig.max_density_error`` cost: a water and a
     honey pour at Pour-v0's settings, each timed against the same pour on its fixed
-    ``iterations`` (the solver without extras) in the same process, alternated twice (the
-    faster of two runs each); and the 30 cm column at the defaults, which on its fixed 4
-    iterations blows up."""
+    ``iterations`` (the solver without extras) in the same process, step by step in turn
+    (:func:`~pourbench.bench.fluids_viscosity.timed_pours`); and the 30 cm column at the
+    defaults, which on its fixed 4 iterations blows up."""
     rows = []
     base = dataclasses.replace(default_solver_config(), device=device)
     fixed = dataclasses.replace(base, max_iterations=base.iterations)
     settings = f"Pour-v0: {base.spacing * 1e3:g} mm, 1/{1 / base.dt:.0f} s, {base.iterations} its"
     for liquid in ("water", "honey"):
         print(f"fluids: holding cost, {liquid} pour at Pour-v0's settings…", file=sys.stderr)
-        times: dict[str, list[float]] = {"fixed": [], "adaptive": []}
-        for _ in range(2):
-            times["fixed"].append(timed_pour(liquid, fixed, seconds)[0])
-            wall, its, _ = timed_pour(liquid, base, seconds)
-            times["adaptive"].append(wall)
-        n = len(its)
-        fixed_ms, ms = 1e3 * min(times["fixed"]) / n, 1e3 * min(times["adaptive"]) / n
+        runs = timed_pours({"fixed": (liquid, fixed), "adaptive": (liquid, base)}, seconds)
+        its = runs["adaptive"].density_iterations
+        fixed_ms, ms = runs["fixed"].ms_per_step, runs["adaptive"].ms_per_step
         rows.append(
             {
                 "scene": f"200 g {liquid} poured for {seconds:g} s",
@@ -242,7 +250,7 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
         "rest_200g_fastest_m_s": rest.typical_fastest(200.0),
         "rest_late_200g_fastest_m_s": late.typical_fastest(200.0),
         "rest_p99_speed_m_s": rest.p99_speed,
-        "rest_bulk_density_kg_m3": rest.bulk_density,
+        "rest_level_density_kg_m3": rest.level_density,
         "rest_late_max_speed_m_s": late.max_speed,
         "rest_late_density_error": late.density_error,
         "rest_asleep_max_speed_m_s": asleep.max_speed,
@@ -274,8 +282,8 @@ def validation(device: str = "cpu") -> tuple[dict[str, Any], str]:
         f"| rest: the 200 g fill's fastest particle at its median sample (m/s) | "
         f"{rest.typical_fastest(200.0):.4f} | ≤ 0.03 |",
         f"| rest: p99 particle speed (m/s) | {rest.p99_speed:.4f} | ≤ 0.015 |",
-        f"| rest: mass / volume in a probe inside the liquid (kg/m³) | {rest.bulk_density:.0f}"
-        " | 1000 |",
+        f"| rest: mass / volume below the liquid's level (kg/m³) | {rest.level_density:.0f}"
+        " | 1000 ± 2 % |",
         f"| rest at {REST_LATE_WINDOW_S[0]:g}–{REST_LATE_WINDOW_S[1]:g} s: the 200 g fill's"
         f" fastest particle at its median sample / fastest of all (m/s) / bulk density error |"
         f" {late.typical_fastest(200.0):.4f} / {late.max_speed:.4f} / {late.density_error:.4f}"
@@ -334,6 +342,7 @@ def run(args: argparse.Namespace) -> int:
     checks, checks_md = ({}, "") if args.quick else validation(checks_device)
     hold = [] if args.quick else holding_cost(checks_device)
     visc_cost = [] if args.quick else viscosity_cost(checks_device)
+    corr_cost = [] if args.quick else correction_cost(checks_device)
     ball, ball_note = ([], "") if args.quick else falling_ball_check(checks_device)
     settling, settling_note = ([], "") if args.quick else settling_check(checks_device)
     shear, shear_fits, shear_note = ([], [], "") if args.quick else shear_cell_check(checks_device)
@@ -345,7 +354,8 @@ def run(args: argparse.Namespace) -> int:
             "`PBFSolver.step` (median step; `best_…` from the fastest step). The baseline is "
             "an all-cells-candidates PBF "
             "(`pourbench/bench/fluids_baseline.py`: hash-grid query in every pass, no "
-            "viscosity/vorticity/SDF collisions) timed in the same process. `pair_lists`: "
+            "viscosity/vorticity/SDF collisions) timed in the same process, a step of each "
+            "in turn. `pair_lists`: "
             "half lists (each pair once, added to both particles; the CPU default) or full "
             "lists (each particle sums its own side, lists interleaved so a GPU warp reads "
             "them coalesced; the CUDA default, reproducible without atomics between threads).",
@@ -377,6 +387,16 @@ def run(args: argparse.Namespace) -> int:
             else "",
             "",
             markdown_table(visc_cost) if visc_cost else "",
+            "",
+            f"## Cost of the corrected pressure ({checks_device})" if corr_cost else "",
+            "",
+            "A Pour-v0 environment step with `SolverConfig.corrected_pressure` on; "
+            "`ms_per_step_plain`: the same environment with it off, in the same process, "
+            "stepped in turn with the same actions (docs/viscosity.md)."
+            if corr_cost
+            else "",
+            "",
+            markdown_table(corr_cost) if corr_cost else "",
             "",
             f"## Physical checks ({checks_device})" if checks_md else "",
             "",
@@ -414,6 +434,7 @@ def run(args: argparse.Namespace) -> int:
                 "validation": checks,
                 "holding_cost": hold,
                 "viscosity_cost": visc_cost,
+                "correction_cost": corr_cost,
                 "falling_ball": ball,
                 "settling": settling,
                 "shear_cell": shear,

@@ -1,6 +1,7 @@
-"""The viscosity sections of ``pourbench bench fluids``: what the physical viscosity costs a
-Pour-v0 step, and the falling-ball experiment of thesis §3.3 (Table 3.4) beside the thesis'
-marble speeds and the closed form."""
+"""The viscosity sections of ``pourbench bench fluids``: what the physical viscosity and the
+corrected pressure cost a Pour-v0 step (pours timed step by step in turn, :func:`timed_pours`),
+and the falling-ball experiment of thesis §3.3 (Table 3.4) beside the thesis' marble speeds
+and the closed form."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import dataclasses
 import itertools
 import sys
 import time
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -44,43 +47,69 @@ MARBLE_ORDER = (
 """Table 3.4's liquids, fastest marble first."""
 
 
-def timed_pour(
-    liquid: Any, config: SolverConfig, seconds: float
-) -> tuple[float, np.ndarray, np.ndarray]:
-    """Seconds of solver steps of a 200 g pour of ``liquid`` (the validation pours' tilt) at
-    ``config``, and each step's density iterations and viscous conjugate-gradient iterations
-    (the latter empty without the solve)."""
-    scene = two_cup_scene(liquid, 200.0, config=config)
-    s, wall, density_its, viscous_its = scene.solver, 0.0, [], []
-    while s.time < seconds - 1e-9:
-        scene.set_tilt(tilt_schedule(s.time))
-        t0 = time.perf_counter()
-        scene.step()
-        wall += time.perf_counter() - t0
-        density_its.append(s.iterations_used()[0])
-        if s.viscosity is not None:
-            viscous_its.append(int(s.viscosity.iterations.numpy()[0]))
-    return wall, np.array(density_its), np.array(viscous_its)
+@dataclass(frozen=True)
+class TimedPour:
+    """One case of :func:`timed_pours`: the wall time of its timed steps and, for every step,
+    the density iterations and the viscous conjugate-gradient iterations (the latter empty
+    without the solve)."""
+
+    seconds: float
+    density_iterations: np.ndarray
+    viscous_iterations: np.ndarray
+
+    @property
+    def ms_per_step(self) -> float:
+        """Milliseconds per timed step (every step but the first, which loads the kernels)."""
+        return 1e3 * self.seconds / max(1, len(self.density_iterations) - 1)
+
+
+def timed_pours(
+    cases: Mapping[str, tuple[Any, SolverConfig]], seconds: float
+) -> dict[str, TimedPour]:
+    """A 200 g pour of each case's liquid at its config (the validation pours' tilt), every
+    case's scene built in this process and stepped in turn, one step each, so that all see the
+    same machine load. A case's first step loads its kernels and is not timed."""
+    scenes = {
+        name: two_cup_scene(liquid, 200.0, config=cfg) for name, (liquid, cfg) in cases.items()
+    }
+    wall = dict.fromkeys(scenes, 0.0)
+    density_its: dict[str, list[int]] = {name: [] for name in scenes}
+    viscous_its: dict[str, list[int]] = {name: [] for name in scenes}
+    first = True
+    while any(scene.solver.time < seconds - 1e-9 for scene in scenes.values()):
+        for name, scene in scenes.items():
+            s = scene.solver
+            if s.time >= seconds - 1e-9:
+                continue
+            scene.set_tilt(tilt_schedule(s.time))
+            t0 = time.perf_counter()
+            scene.step()
+            if not first:
+                wall[name] += time.perf_counter() - t0
+            density_its[name].append(s.iterations_used()[0])
+            if s.viscosity is not None:
+                viscous_its[name].append(int(s.viscosity.iterations.numpy()[0]))
+        first = False
+    return {
+        name: TimedPour(wall[name], np.array(density_its[name]), np.array(viscous_its[name]))
+        for name in scenes
+    }
 
 
 def viscosity_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, Any]]:
     """A water and a honey pour at Pour-v0's settings with their physical viscosity, timed
     against the same liquid as a FleX-only profile (XSPH by its FleX coefficient, no solve:
-    the solver before physical viscosities) in the same process, alternated twice (the
-    faster of two runs each)."""
+    the solver before physical viscosities) in the same process, step by step in turn
+    (:func:`timed_pours`)."""
     cfg = dataclasses.replace(default_solver_config(), device=device)
     rows = []
     for name in ("water", "honey"):
         print(f"fluids: viscosity cost, {name} pour at Pour-v0's settings…", file=sys.stderr)
         shipped = liquid_profile(name)
         flex = shipped.replace(viscosity_pa_s=None)
-        times: dict[str, list[float]] = {"flex": [], "physical": []}
-        for _ in range(2):
-            times["flex"].append(timed_pour(flex, cfg, seconds)[0])
-            wall, _, its = timed_pour(shipped, cfg, seconds)
-            times["physical"].append(wall)
-        steps = round(seconds / cfg.dt)
-        flex_ms, ms = 1e3 * min(times["flex"]) / steps, 1e3 * min(times["physical"]) / steps
+        runs = timed_pours({"flex": (flex, cfg), "physical": (shipped, cfg)}, seconds)
+        flex_ms, ms = runs["flex"].ms_per_step, runs["physical"].ms_per_step
+        its = runs["physical"].viscous_iterations
         rows.append(
             {
                 "scene": f"200 g {name} ({shipped.viscosity_pa_s:g} Pa·s) poured for {seconds:g} s",
@@ -89,6 +118,53 @@ def viscosity_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, 
                 "cost_ratio": ms / flex_ms,
                 "viscosity_iterations_mean": float(its.mean()),
                 "viscosity_iterations_max": int(its.max()),
+            }
+        )
+    return rows
+
+
+POUR_ACTION = np.array([0.5, 1.0], np.float32)
+"""The fixed action ``pourbench bench env`` steps with."""
+
+
+def correction_cost(device: str = "cpu", steps: int = 300, seed: int = 0) -> list[dict[str, Any]]:
+    """What ``SolverConfig.corrected_pressure`` costs a Pour-v0 step with water and with
+    honey: two environments, the correction on in one and off in the other, stepped in turn
+    with ``pourbench bench env``'s pouring action from the same resets, in this process, for
+    ``steps`` environment steps each (the first, which loads the kernels, untimed)."""
+    from pourbench.envs.pour_v0 import PourEnv
+
+    base = dataclasses.replace(default_solver_config(), device=device)
+    rows = []
+    for name in ("water", "honey"):
+        print(f"fluids: corrected-pressure cost, Pour-v0 with {name}…", file=sys.stderr)
+        envs = {
+            flag: PourEnv(
+                liquid=name, solver=dataclasses.replace(base, corrected_pressure=flag == "on")
+            )
+            for flag in ("off", "on")
+        }
+        wall = dict.fromkeys(envs, 0.0)
+        for env in envs.values():
+            env.reset(seed=seed)
+        for k in range(steps + 1):
+            for flag, env in envs.items():
+                t0 = time.perf_counter()
+                _, _, terminated, truncated, _ = env.step(POUR_ACTION)
+                if k > 0:
+                    wall[flag] += time.perf_counter() - t0
+                if terminated or truncated:
+                    env.reset(seed=seed + k)
+        for env in envs.values():
+            env.close()
+        off_ms, on_ms = 1e3 * wall["off"] / steps, 1e3 * wall["on"] / steps
+        rows.append(
+            {
+                "scene": f"Pour-v0, {name}, the pouring action {tuple(POUR_ACTION.tolist())}",
+                "env_steps": steps,
+                "ms_per_step_plain": off_ms,
+                "ms_per_step": on_ms,
+                "cost_ratio": on_ms / off_ms,
             }
         )
     return rows

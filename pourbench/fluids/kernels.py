@@ -1364,9 +1364,9 @@ def solid_moments(
     wall: wp.array(dtype=vec5),
     wall_collider: wp.array(dtype=wp.int32),
     cols: Colliders,
-    h: float,
+    sites: wp.array(dtype=vec5),
+    reach: float,
     spacing: float,
-    grad_c: float,
     corr: wp.array(dtype=wp.mat33),
 ):
     """Add to the gradient moments of each particle with a collider within h
@@ -1380,29 +1380,77 @@ def solid_moments(
     particle a half spacing from a flat wall gets exactly the layer of sites beyond it, and
     the count changes continuously as it moves. The same sites find a container's inner
     corner and edges and a second collider. Why the lattice and not the density constraint's
-    continuous half-space (:func:`wall_sum`): docs/viscosity.md, "Shear cell"."""
+    continuous half-space (:func:`wall_sum`): docs/viscosity.md, "Shear cell".
+
+    Only colliders whose signed distance at the particle is under h + s/2 can give a site
+    within h a share (a signed distance is 1-Lipschitz), and a site farther than its
+    collider's distance at the particle less s/2 has none, so each particle evaluates the
+    colliders it borders once, and at a site only those: up to two, in their own frames
+    (more than two fall back to :func:`site_share` over the world's colliders). ``sites``:
+    :func:`pourbench.fluids.step.lattice_sites`; ``reach``: the farthest site's distance
+    plus s/2."""
     i = wp.tid()
     if wall_collider[i] < 0:
         return
     pi = p[i]
     w = world[i]
+    # the colliders this particle borders: index, its local point, its rotation, sd there
+    k1 = int(-1)
+    k2 = int(-1)
+    near = int(0)
+    q1 = wp.vec3(0.0)
+    q2 = wp.vec3(0.0)
+    rot1 = wp.quat_identity()
+    rot2 = wp.quat_identity()
+    sd_near = float(1.0e10)
+    for k in range(cols.world_start[w], cols.world_end[w]):
+        q = wp.transform_point(wp.transform_inverse(cols.pose[k]), pi)
+        if wp.length(q) - cols.bound[k] < reach:
+            sd = sdf_of(cols, k, q)[0]
+            if sd < reach:
+                near += 1
+                sd_near = wp.min(sd_near, sd)
+                if k1 < 0:
+                    k1 = k
+                    q1 = q
+                    rot1 = wp.transform_get_rotation(cols.pose[k])
+                else:
+                    k2 = k
+                    q2 = q
+                    rot2 = wp.transform_get_rotation(cols.pose[k])
+    if near == 0:
+        return
     n = wp.vec3(wall[i][0], wall[i][1], wall[i][2])
     axis = wp.vec3(1.0, 0.0, 0.0)
     if wp.abs(n[0]) > 0.6:
         axis = wp.vec3(0.0, 1.0, 0.0)
     t1 = wp.normalize(wp.cross(n, axis))
     t2 = wp.cross(n, t1)
-    m = int(wp.ceil(h / spacing)) - 1  # the sites within h lie m spacings out or less
-    acc = wp.mat33(0.0)
-    for a in range(-m, m + 1):
-        for b in range(-m, m + 1):
-            for c in range(-m, m + 1):
-                r = (t1 * float(a) + t2 * float(b) + n * float(c)) * spacing  # p_i − site
-                dist = wp.length(r)
-                if dist > 1.0e-9 and dist < h:
-                    share = site_share(cols, w, pi - r, spacing)
-                    if share > 0.0:
-                        acc += wp.outer(r, r) * (-spiky_factor(dist, h, grad_c) * share)
+    # the lattice's axes, times s, in each near collider's frame
+    a1 = wp.quat_rotate_inv(rot1, t1) * spacing
+    b1 = wp.quat_rotate_inv(rot1, t2) * spacing
+    c1 = wp.quat_rotate_inv(rot1, n) * spacing
+    a2 = wp.quat_rotate_inv(rot2, t1) * spacing
+    b2 = wp.quat_rotate_inv(rot2, t2) * spacing
+    c2 = wp.quat_rotate_inv(rot2, n) * spacing
+    acc = wp.mat33(0.0)  # in the lattice's frame (t1, t2, n)
+    for j in range(sites.shape[0]):
+        site = sites[j]
+        if sd_near - site[3] < 0.5 * spacing:
+            e = wp.vec3(site[0], site[1], site[2])
+            share = float(0.0)
+            if near > 2:
+                r = (t1 * e[0] + t2 * e[1] + n * e[2]) * spacing
+                share = site_share(cols, w, pi - r, spacing)
+            else:
+                sd = sdf_of(cols, k1, q1 - (a1 * e[0] + b1 * e[1] + c1 * e[2]))[0]
+                if k2 >= 0:
+                    sd = wp.min(sd, sdf_of(cols, k2, q2 - (a2 * e[0] + b2 * e[1] + c2 * e[2]))[0])
+                share = wp.clamp(0.5 - sd / spacing, 0.0, 1.0)
+            if share > 0.0:
+                acc += wp.outer(e, e) * (site[4] * share)
+    frame = wp.matrix_from_cols(t1, t2, n)
+    acc = frame * acc * wp.transpose(frame)
     corr[i] = corr[i] + acc
 
 

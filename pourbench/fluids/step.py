@@ -9,6 +9,7 @@ once as a graph and replayed; the solver decides which parts run
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
@@ -22,6 +23,22 @@ from pourbench.fluids.params import LiquidProfile
 
 if TYPE_CHECKING:
     from pourbench.fluids.viscosity import ImplicitViscosity
+
+
+def lattice_sites(h: float, spacing: float, grad_c: float) -> np.ndarray:
+    """The sites of :func:`~pourbench.fluids.kernels.solid_moments`' lattice: the cubic
+    lattice of ``spacing`` s about a particle, the particle left out, within the kernel
+    radius h. A row per site: its offset e = (p_i − site) / s in the lattice's frame, its
+    distance |e| s (m), and the weight −spiky_factor(|e| s) s² of its moments (a site of
+    solid share φ adds φ · weight · e ⊗ e to the particle's M, in the lattice's frame)."""
+    m = math.ceil(h / spacing) - 1  # the sites within h lie m spacings out or less
+    steps = np.arange(-m, m + 1, dtype=float)
+    e = np.stack(np.meshgrid(steps, steps, steps, indexing="ij"), -1).reshape(-1, 3)
+    dist = np.linalg.norm(e, axis=1) * spacing
+    keep = (dist > 1.0e-9) & (dist < h)
+    e, dist = e[keep], dist[keep]
+    weight = -grad_c * (h - dist) ** 2 / dist * spacing**2
+    return np.column_stack([e, dist, weight]).astype(np.float32)
 
 
 class StepLaunches:
@@ -52,6 +69,9 @@ class StepLaunches:
             liq.surface_tension > 0 for liq in liquids
         )
         self.scorr = wp.vec4(*constants.scorr)
+        sites = lattice_sites(config.h, config.spacing, constants.grad_c)
+        self.sites = wp.array(sites, dtype=K.vec5, device=device)
+        self.site_reach = float(sites[:, 3].max() + 0.5 * config.spacing)
         self.viscosity: ImplicitViscosity | None = None  # started at the end of each step
         self._cmds: dict[str, wp.Launch] = {}
         self._graphs: dict[str, wp.Graph] = {}
@@ -167,9 +187,9 @@ class StepLaunches:
                 b.wall,
                 b.wall_collider,
                 b.cols,
-                self.config.h,
+                self.sites,
+                self.site_reach,
                 self.config.spacing,
-                self.k.grad_c,
             ],
             [b.corr],
         )

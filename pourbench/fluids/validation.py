@@ -54,7 +54,7 @@ class RestResult:
     max_speed: float  # m/s, fastest particle of any world at any sample
     median_max_speed: float  # m/s, median over (world, sample) of the fastest particle
     p99_speed: float  # m/s, 99th percentile of all particle speeds at all samples
-    bulk_density: float  # kg/m^3, mean particle mass per volume in a probe inside the bulk
+    level_density: float  # kg/m^3, mass over the volume below the level (rest_in_cup), mean
     solver: PBFSolver
     masses_g: tuple[float, ...]  # the fills, one world each
     fastest: np.ndarray  # m/s, (sample, world): the fastest particle of a world at a sample
@@ -73,9 +73,15 @@ def rest_in_cup(
     sleep_threshold: float = 0.0,
 ) -> tuple[RestResult, ...]:
     """Fill a cup (radius 4 cm) with water at rest density and let it settle; in each of
-    ``windows`` (s, in time order, one run for all) sample speeds, kernel density and a
-    probe's mass per volume ``samples`` times. One result per window."""
-    shape = cup(0.04, 0.08)
+    ``windows`` (s, in time order, one run for all) sample speeds, kernel density and the
+    liquid's mass per volume ``samples`` times. One result per window.
+
+    The mass per volume is the liquid's mass over the cup's cross-section times its level,
+    the level being twice its particles' mean height above the cup's floor: exact for a
+    column of layers a spacing apart, which is how a settled particle liquid stands. A probe
+    with sharp bounds counts whole layers in or out (docs/rest.md)."""
+    radius = 0.04
+    shape = cup(radius, 0.08)
     cfg = SolverConfig(device=device, sleep_threshold=sleep_threshold)
     s = PBFSolver(len(masses_g), cfg)
     for w, mass in enumerate(masses_g):
@@ -89,7 +95,7 @@ def rest_in_cup(
             )
         s.step(round((t0 - s.time) / s.config.dt))
         every = max(1, round((t1 - t0) / s.config.dt / samples))
-        errors, maxima, speeds, bulk = [], [], [], []
+        errors, maxima, speeds, per_volume = [], [], [], []
         for _ in range(samples):
             s.step(every)
             x, v = s.positions(), np.linalg.norm(s.velocities(), axis=1)
@@ -99,20 +105,16 @@ def rest_in_cup(
                 errors.append(s.density_error(w))
                 maxima.append(v[sl].max())
                 speeds.append(v[sl])
-                # mass per volume in a probe cylinder well inside the liquid (1 cm from the
-                # wall, the bottom and the surface): a kernel-free measure of the density
-                rho_xy = np.hypot(xw[:, 0], xw[:, 1])
-                lo, hi = shape.bottom_z + 0.01, np.quantile(xw[:, 2], 0.99) - 0.01
-                probe = (rho_xy < 0.03) & (xw[:, 2] > lo) & (xw[:, 2] < hi)
-                volume = math.pi * 0.03**2 * (hi - lo)
-                bulk.append(probe.sum() * s.particle_mass(w) / volume)
+                level = 2.0 * float(np.mean(xw[:, 2] - shape.bottom_z))
+                mass = len(xw) * s.particle_mass(w)
+                per_volume.append(mass / (math.pi * radius**2 * level))
         results.append(
             RestResult(
                 float(max(errors)),
                 float(max(maxima)),
                 float(np.median(maxima)),
                 float(np.quantile(np.concatenate(speeds), 0.99)),
-                float(np.mean(bulk)),
+                float(np.mean(per_volume)),
                 s,
                 tuple(masses_g),
                 np.reshape(maxima, (samples, len(masses_g))),
