@@ -37,6 +37,10 @@ CPU_WORLDS = (16, 64, 256)
 CUDA_WORLDS = (256, 1024, 4096)
 CPU_WORKERS = (1, 2)
 
+POUR_ACTION = np.array([0.5, 1.0], np.float32)
+"""The fixed action every case steps with: Algorithm 4's (ω, r), rotation at half its limit
+and translation at full, so the container moves over the receiving one and pours."""
+
 
 def cases(quick: bool, device: str = "auto") -> list[tuple[str, str, int]]:
     """(front end, device, worlds) of every case (each vector case on the CPU runs with every
@@ -81,7 +85,7 @@ def run_case(
     if front_end == "single":
         env = PourEnv(solver=scfg)
         env.reset(seed=0)
-        action = np.array([0.5, 1.0], np.float32)
+        action = POUR_ACTION
         env.batch.time_solver(sync)
 
         def solver_s() -> float:
@@ -93,7 +97,7 @@ def run_case(
     else:
         env = PourVectorEnv(worlds, workers=workers, solver=scfg)
         env.reset(seed=0)
-        action = np.tile(np.array([0.5, 1.0], np.float32), (worlds, 1))
+        action = np.tile(POUR_ACTION, (worlds, 1))
         env.solver_seconds(sync)
 
         def solver_s() -> float:
@@ -170,7 +174,7 @@ class _Looped:
         for w in range(worlds):
             self.batch.reset_world(w, seed=w)
         self.batch.flush()
-        self.action = np.tile(np.array([0.5, 1.0]), (worlds, 1))
+        self.action = np.tile(POUR_ACTION.astype(np.float64), (worlds, 1))
 
     def step(self) -> None:
         _, _, terminated, truncated, _ = self.batch.step(self.action)

@@ -15,7 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from pourbench.bench.env import POUR_ACTION
 from pourbench.envs.core import default_solver_config
+from pourbench.envs.pour_v0 import PourEnv
 from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.falling_ball import CYLINDER_RADIUS, MARBLE_RADIUS
 from pourbench.fluids.params import liquid_profile
@@ -123,17 +125,11 @@ def viscosity_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, 
     return rows
 
 
-POUR_ACTION = np.array([0.5, 1.0], np.float32)
-"""The fixed action ``pourbench bench env`` steps with."""
-
-
 def correction_cost(device: str = "cpu", steps: int = 300, seed: int = 0) -> list[dict[str, Any]]:
     """What ``SolverConfig.corrected_pressure`` costs a Pour-v0 step with water and with
     honey: two environments, the correction on in one and off in the other, stepped in turn
     with ``pourbench bench env``'s pouring action from the same resets, in this process, for
     ``steps`` environment steps each (the first, which loads the kernels, untimed)."""
-    from pourbench.envs.pour_v0 import PourEnv
-
     base = dataclasses.replace(default_solver_config(), device=device)
     rows = []
     for name in ("water", "honey"):
