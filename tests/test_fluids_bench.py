@@ -297,13 +297,3 @@ def test_timed_pours_step_every_case_in_turn_through_the_same_pour() -> None:
         assert run.ms_per_step == pytest.approx(1e3 * run.seconds / (steps - 1))
     assert np.all(runs["fixed"].density_iterations == base.iterations)
     assert np.all(runs["adaptive"].density_iterations >= base.iterations)
-
-
-def test_the_bench_times_the_baseline_beside_the_solver() -> None:
-    """A single-world row carries the baseline's rate, timed in the same run, and the speed-up
-    is the ratio of the two rates."""
-    from pourbench.bench.fluids import run_case
-
-    row = run_case("cpu", 2_000, budget_s=0.0)
-    ratio = row["particle_steps_per_s"] / row["baseline_particle_steps_per_s"]
-    assert row["speedup_vs_baseline"] == pytest.approx(ratio)
