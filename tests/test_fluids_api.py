@@ -1022,6 +1022,29 @@ def test_a_particle_in_a_corner_of_three_colliders_counts_the_sites_of_all_three
     np.testing.assert_allclose(solver.buf.corr.numpy()[0], expected, rtol=1e-4, atol=1e-6)
 
 
+def test_a_lattice_liquid_in_a_closed_box_is_pushed_alike_in_every_direction() -> None:
+    """The solid counts as the lattice sites it takes the place of, so a liquid that is itself
+    that lattice, filling a closed box half a spacing from every wall, has complete, even
+    neighbourhoods: the particles beside the walls are pushed toward them as hard as along
+    them (``validation.wall_push_anisotropy``: n·C·n and t·C·t both 1)."""
+    from pourbench.fluids.validation import wall_push_anisotropy
+
+    cfg = SolverConfig(corrected_pressure=True, gravity=(0.0, 0.0, 0.0))
+    d, (nx, ny, nz) = cfg.spacing, (8, 8, 6)
+    box = BoxShell(half_x=nx * d / 2, half_y=ny * d / 2, depth=nz * d, wall=0.01, closed=True)
+    axes = [(np.arange(k) + 0.5) * d - k * d / 2 for k in (nx, ny)]
+    axes.append((np.arange(nz) + 0.5) * d + box.bottom_z)
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    s = PBFSolver(1, cfg)
+    s.add_container(0, box)
+    s.add_particles(0, grid)
+    s.step(1)
+    normal, tangential, count = wall_push_anisotropy(s)
+    assert count == nx * ny * nz - (nx - 2) * (ny - 2) * (nz - 2)  # the outer shell
+    assert normal == pytest.approx(1.0, abs=2e-3)
+    assert tangential == pytest.approx(1.0, abs=2e-3)
+
+
 def test_the_corrected_pressure_keeps_momentum() -> None:
     """A weightless blob packed a tenth too tight springs apart under the corrected density
     solve as under the plain one, along other paths (the correction acts), and its momentum

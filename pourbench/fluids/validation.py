@@ -123,6 +123,31 @@ def rest_in_cup(
     return tuple(results)
 
 
+def wall_push_anisotropy(solver: PBFSolver) -> tuple[float, float, int]:
+    """How much harder the corrected density solve pushes the particles beside a wall toward
+    it than along it (``SolverConfig.corrected_pressure``): over the particles within one
+    spacing of their nearest wall, the mean of n·C·n and of the mean tangential t·C·t, C a
+    particle's correction matrix and n its wall's normal, with the matrices recomputed at the
+    solver's current positions; and how many particles that is. 1 and 1 for a liquid whose
+    neighbours, counted with the solid, sit evenly in every direction."""
+    if not solver.config.corrected_pressure:
+        raise InvalidParameterError("the correction matrices exist with corrected_pressure on")
+    solver.launches.build_neighbours()
+    solver.launches.correct_gradients()
+    p = solver.buf.p.numpy().astype(float)
+    corr = solver.buf.corr.numpy().astype(float)
+    wall = solver.buf.wall.numpy().astype(float)
+    n = wall[:, :3]
+    layer = (solver.buf.wall_collider.numpy() >= 0) & (
+        np.einsum("ij,ij->i", n, p) - wall[:, 3] < solver.config.spacing
+    )
+    if not layer.any():
+        raise InvalidParameterError("no particle lies within a spacing of a wall")
+    normal = np.einsum("ia,iab,ib->i", n[layer], corr[layer], n[layer])
+    tangential = (np.trace(corr[layer], axis1=1, axis2=2) - normal) / 2.0
+    return float(normal.mean()), float(tangential.mean()), int(layer.sum())
+
+
 @dataclass(frozen=True)
 class ColumnResult:
     """A deep column of water left to settle (:func:`deep_column`), sampled over a window."""
