@@ -127,33 +127,32 @@ def viscosity_cost(device: str = "cpu", seconds: float = 4.0) -> list[dict[str, 
 
 def correction_cost(device: str = "cpu", steps: int = 300, seed: int = 0) -> list[dict[str, Any]]:
     """What ``SolverConfig.corrected_pressure`` costs a Pour-v0 step with water and with
-    honey: two environments, the correction on in one and off in the other, stepped in turn
-    with ``pourbench bench env``'s pouring action from the same resets, in this process, for
-    ``steps`` environment steps each (the first, which loads the kernels, untimed)."""
+    honey: two environments, the correction on in one and off in the other, reset with the
+    same seed and stepped in turn with ``pourbench bench env``'s pouring action, in this
+    process, for ``steps`` environment steps each (the first, which loads the kernels,
+    untimed)."""
     base = dataclasses.replace(default_solver_config(), device=device)
     rows = []
     for name in ("water", "honey"):
         print(f"fluids: corrected-pressure cost, Pour-v0 with {name}…", file=sys.stderr)
         envs = {
-            flag: PourEnv(
-                liquid=name, solver=dataclasses.replace(base, corrected_pressure=flag == "on")
-            )
-            for flag in ("off", "on")
+            on: PourEnv(liquid=name, solver=dataclasses.replace(base, corrected_pressure=on))
+            for on in (False, True)
         }
         wall = dict.fromkeys(envs, 0.0)
         for env in envs.values():
             env.reset(seed=seed)
         for k in range(steps + 1):
-            for flag, env in envs.items():
+            for on, env in envs.items():
                 t0 = time.perf_counter()
                 _, _, terminated, truncated, _ = env.step(POUR_ACTION)
                 if k > 0:
-                    wall[flag] += time.perf_counter() - t0
+                    wall[on] += time.perf_counter() - t0
                 if terminated or truncated:
                     env.reset(seed=seed + k)
         for env in envs.values():
             env.close()
-        off_ms, on_ms = 1e3 * wall["off"] / steps, 1e3 * wall["on"] / steps
+        off_ms, on_ms = 1e3 * wall[False] / steps, 1e3 * wall[True] / steps
         rows.append(
             {
                 "scene": f"Pour-v0, {name}, the pouring action {tuple(POUR_ACTION.tolist())}",

@@ -1382,13 +1382,12 @@ def solid_moments(
     corner and edges and a second collider. Why the lattice and not the density constraint's
     continuous half-space (:func:`wall_sum`): docs/viscosity.md, "Shear cell".
 
-    Only colliders whose signed distance at the particle is under h + s/2 can give a site
-    within h a share (a signed distance is 1-Lipschitz), and a site farther than its
-    collider's distance at the particle less s/2 has none, so each particle evaluates the
-    colliders it borders once, and at a site only those: up to two, in their own frames
-    (more than two fall back to :func:`site_share` over the world's colliders). ``sites``:
-    :func:`pourbench.fluids.step.lattice_sites`; ``reach``: the farthest site's distance
-    plus s/2."""
+    Only colliders whose signed distance at the particle is under ``reach`` (the farthest
+    site's distance plus s/2) can give a site a share (a signed distance is 1-Lipschitz), and
+    a site farther than its collider's distance at the particle less s/2 has none, so each
+    particle evaluates the colliders it borders once, and at a site only those: up to two,
+    in their own frames (more than two fall back to :func:`site_share` over the world's
+    colliders). ``sites``: :func:`pourbench.fluids.step.lattice_sites`."""
     i = wp.tid()
     if wall_collider[i] < 0:
         return
