@@ -79,9 +79,10 @@ class SolverConfig:
             resting viscous liquid keeps a jitter of mm/s (docs/viscosity.md).
         corrected_pressure: multiply each pair's density correction by the mean of its two
             particles' gradient-correction matrices (tr(M)/3 M⁻¹, M the second moment of the
-            particle's kernel gradients, its nearest wall's solid counted as the liquid it
-            stands for; Bonet & Lok 1999), so that a correction that pushes every particle
-            alike is isotropic whatever the arrangement of its neighbours. A
+            particle's kernel gradients, the solid behind its nearest wall counted as the
+            mirror image of the liquid in front of it; Bonet & Lok 1999), so that a
+            correction that pushes every particle alike is isotropic whatever the
+            arrangement of its neighbours. A
             packing sheared under pressure then no longer resists with a stress in
             proportion to the pressure (docs/viscosity.md, "Shear cell"). The mean keeps a
             pair's two terms opposite, so momentum is kept.

@@ -979,6 +979,19 @@ def pair_kernels(half: bool) -> PairKernels:
             eta[i] = acc_eta
             dv_sum[i] = acc_dv
 
+    @wp.func
+    def mirror_moments(pi: wp.vec3, pj: wp.vec3, plane: vec5, h: float, grad_c: float):
+        """The gradient moments at ``pi`` of ``pj``'s mirror image across ``plane`` (n, n · x
+        − distance): the liquid the wall hides, seen as the reflection of the liquid in
+        front of it. Zero for a ``pj`` behind the plane, which is there itself."""
+        n = wp.vec3(plane[0], plane[1], plane[2])
+        dj = wp.dot(n, pj) - plane[3]
+        m = wp.mat33(0.0)
+        if dj > 0.0:
+            r = pi - (pj - n * (2.0 * dj))
+            m = wp.outer(r, r) * -spiky_factor(wp.length(r), h, grad_c)
+        return m
+
     @wp.kernel
     def gradient_moments(
         p: wp.array(dtype=wp.vec3),
@@ -986,26 +999,44 @@ def pair_kernels(half: bool) -> PairKernels:
         nbr_start: wp.array(dtype=wp.int32),
         nbr_count: wp.array(dtype=wp.int32),
         stride: int,
+        wall: wp.array(dtype=vec5),
+        wall_collider: wp.array(dtype=wp.int32),
         h: float,
         grad_c: float,
         corr: wp.array(dtype=wp.mat33),
     ):
         """Second moment of each particle's kernel gradients, M_i = −Σ_j ∇_i W_ij ⊗ r_ij
         (r_ij = p_i − p_j; symmetric, positive definite with three or more neighbours out of
-        a plane), in the units of the density constraint's gradients; the solids the liquid
-        borders add theirs after (:func:`solid_moments`). A pair's term is the same for both
-        particles; half lists add it to both (``corr`` zero on entry)."""
+        a plane), in the units of the density constraint's gradients.
+
+        A particle with a wall within h (``wall_collider`` ≥ 0) also counts the mirror
+        images of itself and of its neighbours across its wall's plane (``wall``): ghost
+        particles that fill the half-space behind the plane as the liquid in front of it is
+        packed, so a wall reads as liquid continued in the same layers. Where the solid is
+        not that half-space (an inner corner, a second collider, a convex solid),
+        :func:`solid_moments` adds the difference after. A pair's term is the same for both
+        particles; half lists add it, and the other particle's mirror term, to both
+        (``corr`` zero on entry)."""
         i = wp.tid()
         pi = p[i]
+        plane_i = wall[i]
+        walled_i = wall_collider[i] >= 0
         acc = wp.mat33(0.0)
+        if walled_i:
+            acc += mirror_moments(pi, pi, plane_i, h, grad_c)
         k = nbr_start[i]
         k_end = k + nbr_count[i] * stride
         while k < k_end:
             j = nbr[k]
-            r = pi - p[j]
+            pj = p[j]
+            r = pi - pj
             m = wp.outer(r, r) * -spiky_factor(wp.length(r), h, grad_c)
             acc += m
+            if walled_i:
+                acc += mirror_moments(pi, pj, plane_i, h, grad_c)
             if wp.static(half):
+                if wall_collider[j] >= 0:
+                    m += mirror_moments(pj, pi, wall[j], h, grad_c)
                 wp.atomic_add(corr, j, m)
             k += stride
         if wp.static(half):
@@ -1367,20 +1398,28 @@ def solid_moments(
     sites: wp.array(dtype=vec5),
     reach: float,
     spacing: float,
+    h: float,
+    grad_c: float,
     corr: wp.array(dtype=wp.mat33),
 ):
-    """Add to the gradient moments of each particle with a collider within h
-    (:func:`gradient_moments`) those of the solid it borders, counted as rest liquid on a
-    cubic lattice of the liquid's spacing s: the lattice of the particle's neighbours that
-    a wall cuts off.
+    """Add to the gradient moments of each particle with a collider within h what its
+    wall's mirror images (:func:`gradient_moments`) miss: the solid where it is not the
+    half-space behind the particle's nearest wall plane, counted as rest liquid on a cubic
+    lattice of the liquid's spacing s.
 
-    The lattice is centred on the particle and turned to its nearest wall's plane (normal
-    n); each of its sites within h counts with the solid's share of a band one spacing wide
-    about the solid's surface, φ = clamp(1/2 − sd/s, 0, 1) (:func:`site_share`), so a
-    particle a half spacing from a flat wall gets exactly the layer of sites beyond it, and
-    the count changes continuously as it moves. The same sites find a container's inner
-    corner and edges and a second collider. Why the lattice and not the density constraint's
-    continuous half-space (:func:`wall_sum`): docs/viscosity.md, "Shear cell".
+    The lattice is centred on the particle and turned to its wall's plane (normal n, the
+    particle a distance d in front of it); each site within h has a solid share φ =
+    clamp(1/2 − sd/s, 0, 1) (:func:`site_share`) and a plane share φₙ, the same with the
+    site's distance to the plane, so each share changes continuously as the particle moves.
+    A site with φ > φₙ is solid in front of the plane, an inner corner's second wall or a
+    second collider: it counts φ − φₙ, at itself and at its mirror image across the plane
+    (whose ghost the liquid there cannot supply). Beside a sphere or a capsule (the wall's
+    mean curvature κ > 0), a site with φ < φₙ is behind the plane but not solid: it takes
+    φₙ − φ away. Elsewhere a wall counts as the whole half-space behind its plane, since
+    container walls are shells thinner than h whose far side a liquid never reaches (their
+    signed distance grows again past the shell's mid-surface). A flat wall adds nothing here.
+    Why mirror images and not the density constraint's continuous half-space
+    (:func:`wall_sum`): docs/viscosity.md, "Shear cell".
 
     Only colliders whose signed distance at the particle is under ``reach`` (the farthest
     site's distance plus s/2) can give a site a share (a signed distance is 1-Lipschitz), and
@@ -1432,6 +1471,8 @@ def solid_moments(
     a2 = wp.quat_rotate_inv(rot2, t1) * spacing
     b2 = wp.quat_rotate_inv(rot2, t2) * spacing
     c2 = wp.quat_rotate_inv(rot2, n) * spacing
+    d = wp.dot(n, pi) - wall[i][3]  # the particle's distance to its wall's plane
+    convex = wall[i][4] > 0.0  # a sphere's or capsule's surface: the solid curves away
     acc = wp.mat33(0.0)  # in the lattice's frame (t1, t2, n)
     for j in range(sites.shape[0]):
         site = sites[j]
@@ -1446,8 +1487,15 @@ def solid_moments(
                 if k2 >= 0:
                     sd = wp.min(sd, sdf_of(cols, k2, q2 - (a2 * e[0] + b2 * e[1] + c2 * e[2]))[0])
                 share = wp.clamp(0.5 - sd / spacing, 0.0, 1.0)
-            if share > 0.0:
-                acc += wp.outer(e, e) * (site[4] * share)
+            extra = share - wp.clamp(0.5 - (d - e[2] * spacing) / spacing, 0.0, 1.0)
+            if not convex:
+                extra = wp.max(extra, 0.0)
+            if extra != 0.0:
+                acc += wp.outer(e, e) * (site[4] * extra)
+            if extra > 0.0:  # and at the site's mirror image across the plane
+                m = wp.vec3(e[0], e[1], 2.0 * d / spacing - e[2])
+                dist = wp.length(m) * spacing
+                acc += wp.outer(m, m) * (-spiky_factor(dist, h, grad_c) * spacing * spacing * extra)
     frame = wp.matrix_from_cols(t1, t2, n)
     acc = frame * acc * wp.transpose(frame)
     corr[i] = corr[i] + acc

@@ -175,7 +175,7 @@ class StepLaunches:
         self.launch(
             "gradient_moments",
             self.pairk.gradient_moments,
-            [b.p, *b.lists, self.config.h, self.k.grad_c],
+            [b.p, *b.lists, b.wall, b.wall_collider, self.config.h, self.k.grad_c],
             [b.corr],
         )
         self.launch(
@@ -190,6 +190,8 @@ class StepLaunches:
                 self.sites,
                 self.site_reach,
                 self.config.spacing,
+                self.config.h,
+                self.k.grad_c,
             ],
             [b.corr],
         )
