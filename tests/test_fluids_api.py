@@ -1019,10 +1019,12 @@ def test_a_layer_half_a_spacing_above_a_floor_sees_its_mirror_layer_below() -> N
     expected = (2 * xx + zz) / 3 * np.diag([1 / xx, 1 / xx, 1 / zz])
     grid = (np.arange(5) - 2) * s
     layer = np.stack(np.meshgrid(grid, grid, [0.5 * s], indexing="ij"), -1).reshape(-1, 3)
-    middle = np.array([0.01, 0.02, 0.5 * s])
+    shift = np.array([0.01, 0.02, 0.0])
+    middle = shift + np.array([0.0, 0.0, 0.5 * s])
+    up = np.array([0.0, 0.0, s])
     for points, at, matrix in (
-        (layer + [0.01, 0.02, 0.0], middle, expected),
-        (np.array([[0.01, 0.02, 1.5 * s]]), middle + [0.0, 0.0, s], np.eye(3)),
+        (layer + shift, middle, expected),
+        ((middle + up)[None], middle + up, np.eye(3)),
     ):
         solver = PBFSolver(1, cfg)
         solver.add_collider(0, "plane", [0.0])
