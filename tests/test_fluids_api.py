@@ -920,24 +920,28 @@ def lattice_offsets(n: np.ndarray, spacing: float) -> np.ndarray:
 def solid_beyond_plane(
     p: np.ndarray, plane: np.ndarray, sdf, spacing: float, grad_c: float, h: float
 ) -> tuple[np.ndarray, int]:
-    """What a particle at ``p`` with wall ``plane`` (n, offset, κ) counts of the solid where
-    it is not the half-space behind the plane, from the solid's signed distance ``sdf``
-    (points → m): each lattice site's share clip(1/2 − sd/s) less its plane share, at the
-    site and, where positive, at its mirror image across the plane; negative only beside a
-    curved solid (κ > 0). Also the number of sites with a positive difference."""
+    """What a particle at ``p`` with wall ``plane`` (n, offset, κ) counts of the solid on the
+    lattice sites, from the solid's signed distance ``sdf`` (points → m) and each site's
+    share clip(1/2 − sd/s): beside a flat or concave wall (κ = 0), where its mirror images
+    stand for the half-space behind the plane, the share less the plane's where positive, at
+    the site and at its mirror image across the plane; beside a sphere (κ > 0) the share.
+    Also the number of sites that count."""
     n, offset, kappa = plane[:3], plane[3], plane[4]
     r = lattice_offsets(n, spacing)
     sites = p - r
     behind = sites @ n - offset  # the sites' signed distance to the plane
-    extra = np.clip(0.5 - sdf(sites) / spacing, 0, 1) - np.clip(0.5 - behind / spacing, 0, 1)
-    if kappa <= 0.0:
-        extra = np.maximum(extra, 0.0)
-    mirrored = r + 2.0 * behind[:, None] * n
-    d, dm = np.linalg.norm(r, axis=1), np.linalg.norm(mirrored, axis=1)
-    weight = -grad_c * (h - d) ** 2 / d * extra
-    weight_m = np.where(dm < h, -grad_c * (h - dm) ** 2 / dm, 0.0) * np.maximum(extra, 0.0)
-    moments = np.einsum("k,ka,kb->ab", weight, r, r)
-    moments += np.einsum("k,ka,kb->ab", weight_m, mirrored, mirrored)
+    share = np.clip(0.5 - sdf(sites) / spacing, 0, 1)
+    if kappa > 0.0:
+        extra, mirrored = share, np.zeros((0, 3))
+    else:
+        extra = np.maximum(share - np.clip(0.5 - behind / spacing, 0, 1), 0.0)
+        mirrored = (r + 2.0 * behind[:, None] * n)[extra > 0]
+    d = np.linalg.norm(r, axis=1)
+    moments = np.einsum("k,ka,kb->ab", -grad_c * (h - d) ** 2 / d * extra, r, r)
+    if len(mirrored):
+        dm = np.linalg.norm(mirrored, axis=1)
+        weight = np.where(dm < h, -grad_c * (h - dm) ** 2 / dm, 0.0) * extra[extra > 0]
+        moments += np.einsum("k,ka,kb->ab", weight, mirrored, mirrored)
     return moments, int((extra > 0).sum())
 
 
@@ -945,19 +949,26 @@ def solid_beyond_plane(
 def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: str) -> None:
     """``corrected_pressure``: each particle's matrix is tr(M)/3 · M⁻¹ for its gradient
     moments M = −Σ_j ∇_i W_ij ⊗ r_ij, summed here over the pairs a k-d tree finds; a particle
-    with a wall within h adds the same moments of the mirror images of itself and of its
-    neighbours in front of the wall's plane, and of the solid where it is not that
+    with a container wall within h adds the same moments of the mirror images of itself and
+    of its neighbours in front of the wall's plane, and of the solid where it is not that
     half-space (the cup's inner corner), counted on the lattice sites at the spacing from the
-    shapes' own signed distances. The identity where M is too one-sided to invert (three
-    particles in a row, world 1)."""
+    shapes' own signed distances; one beside a sphere (a ball resting in world 2's cup)
+    counts the solid on the lattice sites. The identity where M is too one-sided to invert
+    (three particles in a row, world 1)."""
     from scipy.spatial import cKDTree
 
+    from pourbench.fluids.colliders import KIND_NAMES
     from pourbench.fluids.config import rest_sums
     from pourbench.fluids.kernels import CORRECTION_MIN_RATIO
 
-    s = PBFSolver(2, SolverConfig(corrected_pressure=True, pair_lists=mode))
-    s.add_collider(0, "plane", [0.0])
-    s.fill(0, s.add_container(0, cup(0.04, 0.08)), 60.0, "water")
+    s = PBFSolver(3, SolverConfig(corrected_pressure=True, pair_lists=mode))
+    cups = {}
+    for w in (0, 2):
+        s.add_collider(w, "plane", [0.0])
+        cups[w] = s.add_container(w, cup(0.04, 0.08))
+    s.add_collider(2, "sphere", [0.012], pose=[0.0, 0.0, 0.016, 1, 0, 0, 0])
+    for w, index in cups.items():
+        s.fill(w, index, 60.0, "water")
     s.add_particles(1, np.array([[0.3, 0.3, 0.05], [0.304, 0.3, 0.05], [0.308, 0.3, 0.05]]))
     s.step(5)
     s.launches.build_neighbours()
@@ -972,27 +983,39 @@ def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: st
         if world[i] == world[j]:
             moments[[i, j]] += spiky_moment(grad_c, h, (p[i] - p[j])[None])
 
-    shape, floor = s.colliders[1], s.colliders[0]
-
-    def sdf(points: np.ndarray) -> np.ndarray:
-        cup_sd = shape.shape.sdf(inverse_transform_points(shape.pose, points))
-        return np.minimum(cup_sd, inverse_transform_points(floor.pose, points)[:, 2])
+    def sdf(points: np.ndarray, w: int) -> np.ndarray:
+        sd = np.full(len(points), np.inf)
+        for c in s.colliders:
+            if c.world != w:
+                continue
+            local = inverse_transform_points(c.pose, points)
+            if c.shape is not None:
+                sd = np.minimum(sd, c.shape.sdf(local))
+            elif c.kind == KIND_NAMES["sphere"]:
+                sd = np.minimum(sd, np.linalg.norm(local, axis=1) - c.params[0])
+            else:
+                assert c.kind == KIND_NAMES["plane"]
+                sd = np.minimum(sd, local[:, 2])
+        return sd
 
     wall = s.buf.wall.numpy().astype(float)
-    corner_sites = 0
+    sites = {"container": 0, "sphere": 0}
     for i in np.flatnonzero(s.buf.wall_collider.numpy() >= 0):
-        n, offset = wall[i, :3], wall[i, 3]
-        near = [j for j in tree.query_ball_point(p[i], h) if world[j] == world[i]]
-        ahead = p[near] @ n - offset
-        ghosts = p[near][ahead > 0] - 2.0 * ahead[ahead > 0, None] * n  # itself included
-        moments[i] += spiky_moment(grad_c, h, p[i] - ghosts)
-        solid, count = solid_beyond_plane(p[i], wall[i], sdf, spacing, grad_c, h)
+        n, offset, kappa = wall[i, :3], wall[i, 3], wall[i, 4]
+        if kappa <= 0.0:
+            near = [j for j in tree.query_ball_point(p[i], h) if world[j] == world[i]]
+            ahead = p[near] @ n - offset
+            ghosts = p[near][ahead > 0] - 2.0 * ahead[ahead > 0, None] * n  # itself included
+            moments[i] += spiky_moment(grad_c, h, p[i] - ghosts)
+        solid, count = solid_beyond_plane(
+            p[i], wall[i], lambda q, w=world[i]: sdf(q, w), spacing, grad_c, h
+        )
         moments[i] += solid
-        corner_sites += count
-    assert corner_sites > 0
+        sites["sphere" if kappa > 0.0 else "container"] += count
+    assert sites["container"] > 0 and sites["sphere"] > 0
     mean = np.trace(moments, axis1=1, axis2=2) / 3.0
     invertible = np.linalg.det(moments) >= CORRECTION_MIN_RATIO * mean**3
-    assert invertible.sum() > 0.95 * (world == 0).sum()
+    assert invertible.sum() > 0.95 * (world != 1).sum()
     assert not invertible[world == 1].any()
     products = got[invertible] @ moments[invertible]
     expected = mean[invertible, None, None] * np.eye(3)

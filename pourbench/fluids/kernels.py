@@ -1009,18 +1009,19 @@ def pair_kernels(half: bool) -> PairKernels:
         (r_ij = p_i − p_j; symmetric, positive definite with three or more neighbours out of
         a plane), in the units of the density constraint's gradients.
 
-        A particle with a wall within h (``wall_collider`` ≥ 0) also counts the mirror
-        images of itself and of its neighbours across its wall's plane (``wall``): ghost
-        particles that fill the half-space behind the plane as the liquid in front of it is
-        packed, so a wall reads as liquid continued in the same layers. Where the solid is
-        not that half-space (an inner corner, a second collider, a convex solid),
-        :func:`solid_moments` adds the difference after. A pair's term is the same for both
+        A particle with a container's wall or a box within h (``wall_collider`` ≥ 0, the
+        wall's mean curvature κ = 0) also counts the mirror images of itself and of its
+        neighbours across its wall's plane (``wall``): ghost particles that fill the
+        half-space behind the plane as the liquid in front of it is packed, so a wall reads
+        as liquid continued in the same layers. Where the solid is not that half-space (an
+        inner corner, a second collider) and beside spheres and capsules (κ > 0),
+        :func:`solid_moments` adds the solid after. A pair's term is the same for both
         particles; half lists add it, and the other particle's mirror term, to both
         (``corr`` zero on entry)."""
         i = wp.tid()
         pi = p[i]
         plane_i = wall[i]
-        walled_i = wall_collider[i] >= 0
+        walled_i = wall_collider[i] >= 0 and plane_i[4] <= 0.0
         acc = wp.mat33(0.0)
         if walled_i:
             acc += mirror_moments(pi, pi, plane_i, h, grad_c)
@@ -1035,7 +1036,7 @@ def pair_kernels(half: bool) -> PairKernels:
             if walled_i:
                 acc += mirror_moments(pi, pj, plane_i, h, grad_c)
             if wp.static(half):
-                if wall_collider[j] >= 0:
+                if wall_collider[j] >= 0 and wall[j][4] <= 0.0:
                     m += mirror_moments(pj, pi, wall[j], h, grad_c)
                 wp.atomic_add(corr, j, m)
             k += stride
@@ -1402,24 +1403,24 @@ def solid_moments(
     grad_c: float,
     corr: wp.array(dtype=wp.mat33),
 ):
-    """Add to the gradient moments of each particle with a collider within h what its
-    wall's mirror images (:func:`gradient_moments`) miss: the solid where it is not the
-    half-space behind the particle's nearest wall plane, counted as rest liquid on a cubic
-    lattice of the liquid's spacing s.
+    """Add to the gradient moments of each particle with a collider within h
+    (:func:`gradient_moments`) those of the solid its wall's mirror images miss, counted as
+    rest liquid on a cubic lattice of the liquid's spacing s.
 
     The lattice is centred on the particle and turned to its wall's plane (normal n, the
     particle a distance d in front of it); each site within h has a solid share φ =
     clamp(1/2 − sd/s, 0, 1) (:func:`site_share`) and a plane share φₙ, the same with the
     site's distance to the plane, so each share changes continuously as the particle moves.
-    A site with φ > φₙ is solid in front of the plane, an inner corner's second wall or a
-    second collider: it counts φ − φₙ, at itself and at its mirror image across the plane
-    (whose ghost the liquid there cannot supply). Beside a sphere or a capsule (the wall's
-    mean curvature κ > 0), a site with φ < φₙ is behind the plane but not solid: it takes
-    φₙ − φ away. Elsewhere a wall counts as the whole half-space behind its plane, since
-    container walls are shells thinner than h whose far side a liquid never reaches (their
-    signed distance grows again past the shell's mid-surface). A flat wall adds nothing here.
-    Why mirror images and not the density constraint's continuous half-space
-    (:func:`wall_sum`): docs/viscosity.md, "Shear cell".
+    Beside a container wall or a box (κ = 0), where the mirror images stand for the
+    half-space behind the plane, a site with φ > φₙ is solid in front of the plane, an inner
+    corner's second wall or a second collider: it counts φ − φₙ, at itself and at its mirror
+    image across the plane (whose ghost the liquid there cannot supply). A flat wall adds
+    nothing here, and behind the plane the half-space stands: container walls are shells
+    thinner than h whose signed distance grows again past their mid-surface, where no liquid
+    reaches (at a box's outer edge the half-space counts too much). Beside a sphere or a capsule (κ > 0), which curves away from its tangent plane
+    within h, no mirror images are counted and each site counts φ. Why mirror images, and
+    not the lattice sites or the density constraint's continuous half-space
+    (:func:`wall_sum`), for container walls: docs/viscosity.md, "Shear cell".
 
     Only colliders whose signed distance at the particle is under ``reach`` (the farthest
     site's distance plus s/2) can give a site a share (a signed distance is 1-Lipschitz), and
@@ -1472,12 +1473,15 @@ def solid_moments(
     b2 = wp.quat_rotate_inv(rot2, t2) * spacing
     c2 = wp.quat_rotate_inv(rot2, n) * spacing
     d = wp.dot(n, pi) - wall[i][3]  # the particle's distance to its wall's plane
-    convex = wall[i][4] > 0.0  # a sphere's or capsule's surface: the solid curves away
+    convex = wall[i][4] > 0.0  # a sphere's or capsule's surface: no mirror images
     acc = wp.mat33(0.0)  # in the lattice's frame (t1, t2, n)
     for j in range(sites.shape[0]):
         site = sites[j]
-        if sd_near - site[3] < 0.5 * spacing:
-            e = wp.vec3(site[0], site[1], site[2])
+        e = wp.vec3(site[0], site[1], site[2])
+        plane_share = wp.clamp(0.5 - (d - e[2] * spacing) / spacing, 0.0, 1.0)
+        # a site with a share lies within sd_near + s/2 (1-Lipschitz); one wholly behind a
+        # container wall's plane adds nothing to its mirror images
+        if sd_near - site[3] < 0.5 * spacing and (convex or plane_share < 1.0):
             share = float(0.0)
             if near > 2:
                 r = (t1 * e[0] + t2 * e[1] + n * e[2]) * spacing
@@ -1487,12 +1491,12 @@ def solid_moments(
                 if k2 >= 0:
                     sd = wp.min(sd, sdf_of(cols, k2, q2 - (a2 * e[0] + b2 * e[1] + c2 * e[2]))[0])
                 share = wp.clamp(0.5 - sd / spacing, 0.0, 1.0)
-            extra = share - wp.clamp(0.5 - (d - e[2] * spacing) / spacing, 0.0, 1.0)
+            extra = share
             if not convex:
-                extra = wp.max(extra, 0.0)
-            if extra != 0.0:
+                extra = wp.max(share - plane_share, 0.0)
+            if extra > 0.0:
                 acc += wp.outer(e, e) * (site[4] * extra)
-            if extra > 0.0:  # and at the site's mirror image across the plane
+            if extra > 0.0 and not convex:  # and at the site's mirror image across the plane
                 m = wp.vec3(e[0], e[1], 2.0 * d / spacing - e[2])
                 dist = wp.length(m) * spacing
                 acc += wp.outer(m, m) * (-spiky_factor(dist, h, grad_c) * spacing * spacing * extra)
