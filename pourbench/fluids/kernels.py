@@ -1417,10 +1417,11 @@ def solid_moments(
     image across the plane (whose ghost the liquid there cannot supply). A flat wall adds
     nothing here, and behind the plane the half-space stands: container walls are shells
     thinner than h whose signed distance grows again past their mid-surface, where no liquid
-    reaches (at a box's outer edge the half-space counts too much). Beside a sphere or a capsule (κ > 0), which curves away from its tangent plane
-    within h, no mirror images are counted and each site counts φ. Why mirror images, and
-    not the lattice sites or the density constraint's continuous half-space
-    (:func:`wall_sum`), for container walls: docs/viscosity.md, "Shear cell".
+    reaches (at a box's outer edge the half-space counts too much). Beside a sphere or a
+    capsule (κ > 0), which curves away from its tangent plane within h, no mirror images
+    are counted and each site counts φ. Why mirror images, and not the lattice sites or the
+    density constraint's continuous half-space (:func:`wall_sum`), for container walls:
+    docs/viscosity.md, "Shear cell".
 
     Only colliders whose signed distance at the particle is under ``reach`` (the farthest
     site's distance plus s/2) can give a site a share (a signed distance is 1-Lipschitz), and
