@@ -7,6 +7,7 @@ quantities; ``tests/test_fluids_physics.py`` asserts them against physical expec
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -368,13 +369,15 @@ def held_sphere_lift(
     settle: float = 1.5,
     window: float = 1.0,
     device: str = "cpu",
+    config: SolverConfig | None = None,
 ) -> np.ndarray:
     """A sphere of ``radius`` (m) held still in a ``tank``-wide square tank (1 cm walls and
     floor) filled ``tank`` deep with each of ``liquids`` (one world each, one solver), its
     centre 1 cm below mid-depth: the liquid's mean upward force on it over ``window`` s after
     ``settle`` s, over the Archimedes lift ρ V g of the liquid's rest density. Hydrostatic
-    balance makes it 1."""
-    cfg = SolverConfig(device=device)
+    balance makes it 1. ``config``: the solver's settings (default ``SolverConfig()``), run
+    on ``device``."""
+    cfg = dataclasses.replace(config or SolverConfig(), device=device)
     s = PBFSolver(len(liquids), cfg)
     shell = BoxShell(tank / 2, tank / 2, tank + 0.02, 0.01)
     volume = 4.0 / 3.0 * math.pi * radius**3
