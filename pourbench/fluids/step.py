@@ -29,8 +29,9 @@ def lattice_sites(h: float, spacing: float, grad_c: float) -> np.ndarray:
     """The sites of :func:`~pourbench.fluids.kernels.solid_moments`' lattice: the cubic
     lattice of ``spacing`` s about a particle, the particle left out, within the kernel
     radius h. A row per site: its offset e = (p_i − site) / s in the lattice's frame, its
-    distance |e| s (m), and the weight −spiky_factor(|e| s) s² of its moments (a site of
-    solid share φ adds φ · weight · e ⊗ e to the particle's M, in the lattice's frame)."""
+    distance |e| s (m), and the weight −spiky_factor(|e| s) s² of its moments (a site that
+    counts c of the solid adds c · weight · e ⊗ e to the particle's M, in the lattice's
+    frame)."""
     m = math.ceil(h / spacing) - 1  # the sites within h lie m spacings out or less
     steps = np.arange(-m, m + 1, dtype=float)
     e = np.stack(np.meshgrid(steps, steps, steps, indexing="ij"), -1).reshape(-1, 3)
