@@ -917,7 +917,7 @@ def lattice_offsets(n: np.ndarray, spacing: float) -> np.ndarray:
     return steps @ np.array([t1, np.cross(n, t1), n]) * spacing
 
 
-def solid_beyond_plane(
+def lattice_solid_moments(
     p: np.ndarray, plane: np.ndarray, sdf, spacing: float, grad_c: float, h: float
 ) -> tuple[np.ndarray, int]:
     """What a particle at ``p`` with wall ``plane`` (n, offset, κ) counts of the solid on the
@@ -1007,7 +1007,7 @@ def test_the_correction_matrices_invert_each_particles_gradient_moments(mode: st
             ahead = p[near] @ n - offset
             ghosts = p[near][ahead > 0] - 2.0 * ahead[ahead > 0, None] * n  # itself included
             moments[i] += spiky_moment(grad_c, h, p[i] - ghosts)
-        solid, count = solid_beyond_plane(
+        solid, count = lattice_solid_moments(
             p[i], wall[i], lambda q, w=world[i]: sdf(q, w), spacing, grad_c, h
         )
         moments[i] += solid
@@ -1086,7 +1086,7 @@ def test_a_particle_in_a_corner_of_three_colliders_counts_the_solid_of_all_three
 
     plane = np.array([1.0, 0.0, 0.0, 0.0, 0.0])  # the x = 0 wall is nearest
     moments = spiky_moment(grad_c, h, np.array([[2.0 * x[0], 0.0, 0.0]]))  # its image
-    solid, count = solid_beyond_plane(x, plane, lambda q: q.min(axis=1), s, grad_c, h)
+    solid, count = lattice_solid_moments(x, plane, lambda q: q.min(axis=1), s, grad_c, h)
     assert count > 0  # the other two walls' sites
     moments += solid
     expected = np.trace(moments) / 3.0 * np.linalg.inv(moments)
@@ -1120,8 +1120,7 @@ def test_settled_water_beside_its_cup_is_pushed_toward_the_wall_as_along_it() ->
     """200 g of water settled for a second in a cup (docs/rest.md) packs beside the wall in
     its own way, not as the lattice; the mirror images of that packing complete the wall
     layer's neighbourhoods, so its particles are pushed toward the wall as hard as along it
-    within 3 % (``validation.wall_push_anisotropy``; counting the solid on lattice sites read
-    n·C·n 1.07)."""
+    within 3 % (``validation.wall_push_anisotropy``; docs/viscosity.md, "Shear cell")."""
     from pourbench.fluids.validation import wall_push_anisotropy
 
     s = PBFSolver(1, SolverConfig(corrected_pressure=True))

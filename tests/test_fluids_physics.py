@@ -199,8 +199,7 @@ def test_with_the_corrected_pressure_the_jammed_groups_feel_the_archimedes_lift(
     """``corrected_pressure`` takes the settled packing's friction out of the liquid: the
     held sphere in Honey, RRS Honey and Hand-gel, whose packings carry part of their weight
     past it without the correction (:data:`JAMMED_AROUND_THE_SPHERE`), and in Water feels
-    its Archimedes lift within 5 % (measured 0.980, 1.015, 1.022 and 1.013;
-    docs/viscosity.md has every group's)."""
+    its Archimedes lift within 5 % (docs/viscosity.md has every group's)."""
     names = ["Water", "Honey", "RRS Honey", "Hand-gel"]
     config = SolverConfig(corrected_pressure=True)
     lift = held_sphere_lift(names, radius=0.015, settle=2.0, window=2.0, config=config)

@@ -516,6 +516,27 @@ class PairKernels(NamedTuple):
     gradient_moments: wp.Kernel
 
 
+@wp.func
+def mirrored(collider: int, plane: vec5) -> bool:
+    """Whether a particle with this wall (:func:`predict`'s ``wall_collider`` and
+    ``wall``) counts mirror images: a wall within h that does not curve away (κ = 0)."""
+    return collider >= 0 and plane[4] <= 0.0
+
+
+@wp.func
+def mirror_moments(pi: wp.vec3, pj: wp.vec3, plane: vec5, h: float, grad_c: float):
+    """The gradient moments at ``pi`` of ``pj``'s mirror image across ``plane`` (n, n · x
+    − distance): the liquid the wall hides, seen as the reflection of the liquid in
+    front of it. Zero for a ``pj`` behind the plane, which is there itself."""
+    n = wp.vec3(plane[0], plane[1], plane[2])
+    dj = wp.dot(n, pj) - plane[3]
+    m = wp.mat33(0.0)
+    if dj > 0.0:
+        r = pi - (pj - n * (2.0 * dj))
+        m = wp.outer(r, r) * -spiky_factor(wp.length(r), h, grad_c)
+    return m
+
+
 def pair_kernels(half: bool) -> PairKernels:
     """The pair kernels for half lists (``half``) or full lists; the mode is a compile-time
     constant (``wp.static``) so neither variant pays for the other's branches."""
@@ -979,19 +1000,6 @@ def pair_kernels(half: bool) -> PairKernels:
             eta[i] = acc_eta
             dv_sum[i] = acc_dv
 
-    @wp.func
-    def mirror_moments(pi: wp.vec3, pj: wp.vec3, plane: vec5, h: float, grad_c: float):
-        """The gradient moments at ``pi`` of ``pj``'s mirror image across ``plane`` (n, n · x
-        − distance): the liquid the wall hides, seen as the reflection of the liquid in
-        front of it. Zero for a ``pj`` behind the plane, which is there itself."""
-        n = wp.vec3(plane[0], plane[1], plane[2])
-        dj = wp.dot(n, pj) - plane[3]
-        m = wp.mat33(0.0)
-        if dj > 0.0:
-            r = pi - (pj - n * (2.0 * dj))
-            m = wp.outer(r, r) * -spiky_factor(wp.length(r), h, grad_c)
-        return m
-
     @wp.kernel
     def gradient_moments(
         p: wp.array(dtype=wp.vec3),
@@ -1021,7 +1029,7 @@ def pair_kernels(half: bool) -> PairKernels:
         i = wp.tid()
         pi = p[i]
         plane_i = wall[i]
-        walled_i = wall_collider[i] >= 0 and plane_i[4] <= 0.0
+        walled_i = mirrored(wall_collider[i], plane_i)
         acc = wp.mat33(0.0)
         if walled_i:
             acc += mirror_moments(pi, pi, plane_i, h, grad_c)
@@ -1036,8 +1044,9 @@ def pair_kernels(half: bool) -> PairKernels:
             if walled_i:
                 acc += mirror_moments(pi, pj, plane_i, h, grad_c)
             if wp.static(half):
-                if wall_collider[j] >= 0 and wall[j][4] <= 0.0:
-                    m += mirror_moments(pj, pi, wall[j], h, grad_c)
+                plane_j = wall[j]
+                if mirrored(wall_collider[j], plane_j):
+                    m += mirror_moments(pj, pi, plane_j, h, grad_c)
                 wp.atomic_add(corr, j, m)
             k += stride
         if wp.static(half):
@@ -1474,7 +1483,7 @@ def solid_moments(
     b2 = wp.quat_rotate_inv(rot2, t2) * spacing
     c2 = wp.quat_rotate_inv(rot2, n) * spacing
     d = wp.dot(n, pi) - wall[i][3]  # the particle's distance to its wall's plane
-    convex = wall[i][4] > 0.0  # a sphere's or capsule's surface: no mirror images
+    convex = not mirrored(wall_collider[i], wall[i])  # a sphere's or capsule's surface
     acc = wp.mat33(0.0)  # in the lattice's frame (t1, t2, n)
     for j in range(sites.shape[0]):
         site = sites[j]
@@ -1497,10 +1506,10 @@ def solid_moments(
                 extra = wp.max(share - plane_share, 0.0)
             if extra > 0.0:
                 acc += wp.outer(e, e) * (site[4] * extra)
-            if extra > 0.0 and not convex:  # and at the site's mirror image across the plane
-                m = wp.vec3(e[0], e[1], 2.0 * d / spacing - e[2])
-                dist = wp.length(m) * spacing
-                acc += wp.outer(m, m) * (-spiky_factor(dist, h, grad_c) * spacing * spacing * extra)
+                if not convex:  # and at the site's mirror image across the plane
+                    m = wp.vec3(e[0], e[1], 2.0 * d / spacing - e[2])
+                    weight = -spiky_factor(wp.length(m) * spacing, h, grad_c) * spacing * spacing
+                    acc += wp.outer(m, m) * (weight * extra)
     frame = wp.matrix_from_cols(t1, t2, n)
     acc = frame * acc * wp.transpose(frame)
     corr[i] = corr[i] + acc
