@@ -13,6 +13,7 @@ from pourbench.fluids.falling_ball import (
     MARBLE_RADIUS,
     haberman_sayre,
     marble_viscosity,
+    startup_fall,
     terminal_speed,
 )
 from pourbench.fluids.params import liquid_profile
@@ -72,3 +73,27 @@ def test_terminal_speed_inverts_the_viscosity(mu: float, rho: float) -> None:
     speed, re = terminal_speed(mu, rho)
     back, re_back = marble_viscosity(speed, rho)
     assert back == pytest.approx(mu, rel=1e-8) and re_back == pytest.approx(re, rel=1e-8)
+
+
+def test_a_slow_sphere_starts_up_as_the_linear_drag_says() -> None:
+    """At Re ≪ 1 the drag is linear, v(t) = V (1 − e^(−t/τ)) with τ = (m + m_a) / (6πμRK),
+    and the fall until v = f V is V τ (−ln(1 − f) − f)."""
+    radius, rho_s, rho, mu, bore = 0.015, 2500.0, 1000.0, 5000.0, 0.05
+    speed, re = terminal_speed(mu, rho, radius, rho_s, bore)
+    volume = 4 / 3 * math.pi * radius**3
+    tau = (rho_s + 0.5 * rho) * volume / (6 * math.pi * mu * radius * haberman_sayre(radius / bore))
+    assert re < 1e-6
+    for f in (0.9, 0.98):
+        closed = speed * tau * (-math.log(1 - f) - f)
+        assert startup_fall(mu, rho, radius, rho_s, bore, fraction=f) == pytest.approx(
+            closed, rel=1e-3
+        )
+
+
+def test_a_fast_sphere_needs_a_long_fall_to_reach_its_terminal_speed() -> None:
+    """In 0.1 Pa·s (Re near 160) the settling sphere of ``validation.falling_ball`` needs
+    more fall than its 14 cm column leaves it, in 5 Pa·s a few millimetres."""
+    args = (1000.0, 0.015, 2500.0, 0.05)
+    assert startup_fall(0.1, *args) > 0.09
+    assert startup_fall(5.0, *args) < 0.005
+    assert startup_fall(0.1, *args, fraction=0.9) < startup_fall(0.1, *args)

@@ -19,7 +19,7 @@ from scipy.special import jn_zeros
 from pourbench.errors import InvalidParameterError
 from pourbench.fluids.config import SolverConfig
 from pourbench.fluids.coupling import MujocoCoupling
-from pourbench.fluids.falling_ball import terminal_speed
+from pourbench.fluids.falling_ball import startup_fall, terminal_speed
 from pourbench.fluids.params import LiquidProfile, liquid_profile
 from pourbench.fluids.rheology import couette_inner_stress, omega_for_rate, yield_tilt
 from pourbench.fluids.scenarios import GRAVITY, tilt_schedule, two_cup_scene
@@ -479,17 +479,12 @@ class FallingBall:
         return float(self.speeds[1:].mean())
 
 
-SETTLING_VISCOSITIES = (0.05, 0.5, 5.0, 50.0)
+SETTLING_VISCOSITIES = (0.1, 0.5, 5.0, 50.0)
 """Pa·s: the four decades over which a settling sphere is compared with the closed form."""
 
-SETTLING_RANGE_PA_S = (0.5, 50.0)
-"""Pa·s: the viscosities over which the settling sphere is held to the closed form. Below
-them the particle method's own viscosity and the settled packing's resistance set the
-sphere's speed, not the liquid's viscosity (docs/viscosity.md)."""
-
-SETTLING_TOLERANCE = 0.30
-"""How near the closed form the settling sphere's terminal speed must be over
-:data:`SETTLING_RANGE_PA_S`, as a fraction of it."""
+SETTLING_TOLERANCE = 0.25
+"""How near the closed form the settling sphere's terminal speed must be, as a fraction of
+it."""
 
 FLEX_VELOCITY_TERMS = (
     *("viscosity", "cohesion", "surfaceTension", "adhesion", "vorticityConfinement"),
@@ -521,17 +516,24 @@ def falling_ball(
     settle: float = 1.0,
     ball_density: float = 2500.0,
     config: SolverConfig | None = None,
+    startup: float | None = None,
 ) -> list[FallingBall]:
     """The falling-ball experiment of thesis §3.3: a glass sphere of ``radius`` (m) and
     ``ball_density`` (kg/m³) on a vertical slide joint (MuJoCo, two-way coupled) on the axis
     of a cylinder of inner radius ``bore`` holding ``depth`` of each liquid (one world each).
     The sphere is held with its top 5 mm under the surface while the liquid settles for
-    ``settle`` s, then released for ``seconds``; one that comes within a radius of the floor
-    is held there. The stretch measured starts a radius below the release (past the start-up)
-    and ends with the sphere's centre 5 radii above the floor (nearer, the floor slows it:
-    Brenner's factor is 1 + 9R/8z to first order, 1.2 there); its three thirds in time give
-    ``speeds``. The closed form is Stokes' drag with the cylinder's Haberman–Sayre factor and
-    the Schiller–Naumann inertia term (:func:`pourbench.fluids.falling_ball.terminal_speed`)."""
+    ``settle`` s, then released for at most ``seconds``; one that comes within a radius of the
+    floor is held there. The stretch measured starts a radius below the release; with
+    ``startup`` = f, where the closed form's own start-up from rest reaches f of its terminal
+    speed if that is deeper (:func:`~pourbench.fluids.falling_ball.startup_fall`; 0.98
+    measures a terminal speed, the default times the thesis' marble as it was timed).
+    It is a diameter long and must end with the sphere's centre 5 radii above the floor or
+    higher (nearer, the floor slows it: Brenner's factor is 1 + 9R/8z to first order, 1.2
+    there): a column too short for it is an :class:`InvalidParameterError`. Its three thirds
+    in time give ``speeds``, NaN for a sphere that did not cross it within ``seconds``; the
+    run ends once every sphere has. The closed form is Stokes' drag with the cylinder's
+    Haberman–Sayre factor and the Schiller–Naumann inertia term
+    (:func:`pourbench.fluids.falling_ball.terminal_speed`)."""
     cfg = config or SolverConfig()
     n = len(liquids)
     mass = ball_density * 4.0 / 3.0 * math.pi * radius**3
@@ -548,6 +550,20 @@ def falling_ball(
     coupling = MujocoCoupling(s, model, datas)
     coupling.add_geoms(["ball"])
     ball_volume = 4.0 / 3.0 * math.pi * radius**3
+    lowest = depth - 3.0 * radius - 0.005  # a fall that ends a radius above the floor
+    starts = np.full(n, radius)
+    for w, liquid in enumerate(liquids):
+        p = liquid_profile(liquid)
+        if startup is not None and p.viscosity_pa_s:
+            fall = startup_fall(p.viscosity_pa_s, p.density, radius, ball_density, bore, startup)
+            starts[w] = max(radius, fall)
+        if starts[w] + 2.0 * radius > lowest - 3.0 * radius + 1e-9:
+            raise InvalidParameterError(
+                f"a {depth * 100:g} cm column is too short to time the sphere in {p.name!r}: "
+                f"its stretch starts {starts[w] * 100:.1f} cm below the release, is "
+                f"{2 * radius * 100:g} cm long and must end by {(lowest - 3 * radius) * 100:.1f} cm"
+            )
+    ends = starts + 2.0 * radius
     for w, liquid in enumerate(liquids):
         s.set_liquid(w, liquid)
         rho = s.liquids[w].density
@@ -559,8 +575,7 @@ def falling_ball(
         coupling.apply()
     start = s.time
     times, falls = [0.0], [np.zeros(n)]
-    lowest = z0 - floor - 2.0 * radius  # a fall that ends a radius above the floor
-    while s.time - start < seconds - 1e-9 and min(falls[-1]) < lowest:
+    while s.time - start < seconds - 1e-9 and np.any(falls[-1] < ends):
         coupling.step()
         fall = np.array([-d.qpos[0] for d in datas])
         for w in np.flatnonzero(fall >= lowest):  # stopped over the floor MuJoCo does not see
@@ -574,15 +589,73 @@ def falling_ball(
         rho = s.liquids[w].density
         mu = s.liquids[w].viscosity_pa_s or 0.0
         closed, re = terminal_speed(mu, rho, radius, ball_density, bore) if mu else (math.inf, 0.0)
-        stretch = (fall[:, w] >= radius) & (fall[:, w] <= lowest - 3.0 * radius)
+        stretch = (fall[:, w] >= starts[w]) & (fall[:, w] <= ends[w])
         ts, zs = t[stretch], fall[stretch, w]
-        speeds = np.full(3, np.nan)  # it did not reach the stretch
-        if len(ts) > 3:
+        speeds = np.full(3, np.nan)  # it did not cross the stretch
+        if len(ts) > 3 and fall[-1, w] >= ends[w]:
             edges = np.linspace(ts[0], ts[-1], 4)
             speeds = np.diff(np.interp(edges, ts, zs)) / np.diff(edges)
         name = liquid if isinstance(liquid, str) else liquid.name
         out.append(FallingBall(name, t, fall[:, w], speeds, closed, re))
     return out
+
+
+SETTLING_STARTUP = 0.98
+"""The share of its closed-form terminal speed the settling sphere's closed-form start-up
+reaches where its timed stretch begins (:func:`settling_sphere`)."""
+
+SETTLING_SLOWEST = 0.5
+"""The slowest settling sphere :func:`settling_sphere` waits for, as a fraction of the
+closed form: one slower reads NaN."""
+
+SETTLING_SHARED_WAIT = 4.0
+"""How many times the quickest one's wait the spheres that share a run of
+:func:`settling_sphere` may wait."""
+
+
+def settling_sphere(
+    viscosities: Sequence[float], config: SolverConfig | None = None
+) -> list[FallingBall]:
+    """The falling ball's sphere (:func:`falling_ball`'s defaults) settling in a Newtonian
+    liquid of each of ``viscosities`` (Pa·s, :func:`newtonian`), timed at its terminal speed:
+    each stretch starts where the closed form's start-up has reached
+    :data:`SETTLING_STARTUP` of it, in one column deep enough for the longest start-up (the
+    14 cm of Table 3.4's check or more: 24 cm with 0.1 Pa·s, where the sphere needs 11 cm of
+    fall). Each run waits until its spheres have crossed their stretches at
+    :data:`SETTLING_SLOWEST` of the closed form; spheres whose waits are within
+    :data:`SETTLING_SHARED_WAIT` of each other share a run, so that a quick one does not
+    wait on a slow one. The results in the order of ``viscosities``."""
+    radius, ball_density, bore = 0.015, 2500.0, 0.05
+    clearance = 6.0 * radius + 0.005  # release 5 mm under the surface, stop 5 radii above the floor
+    waits, deepest = [], 0.14
+    for mu in viscosities:
+        start = max(radius, startup_fall(mu, 1000.0, radius, ball_density, bore, SETTLING_STARTUP))
+        deepest = max(deepest, start + 2.0 * radius + clearance)
+        closed = terminal_speed(mu, 1000.0, radius, ball_density, bore)[0]
+        waits.append((start + 2.0 * radius) / (SETTLING_SLOWEST * closed))
+    depth = math.ceil(round(deepest * 100.0, 6)) / 100.0
+    runs: list[list[int]] = []
+    for i in sorted(range(len(viscosities)), key=waits.__getitem__):
+        if runs and waits[i] <= SETTLING_SHARED_WAIT * waits[runs[-1][0]]:
+            runs[-1].append(i)
+        else:
+            runs.append([i])
+    out: list[FallingBall | None] = [None] * len(viscosities)
+    for members in runs:
+        members.sort()
+        results = falling_ball(
+            [newtonian(viscosities[i]) for i in members],
+            radius=radius,
+            bore=bore,
+            depth=depth,
+            seconds=max(waits[i] for i in members),
+            ball_density=ball_density,
+            config=config,
+            startup=SETTLING_STARTUP,
+        )
+        for i, result in zip(members, results, strict=True):
+            out[i] = result
+    return [r for r in out if r is not None]
 
 
 SHEAR_VISCOSITIES = (0.1, 1.0, 10.0)
