@@ -307,8 +307,8 @@ def settling_plain() -> list:
 
 @pytest.mark.slow
 def test_a_settling_sphere_falls_slower_the_thicker_the_liquid(settling_plain) -> None:
-    """Over two decades of viscosity the sphere reaches a terminal speed, and a lower one in
-    each thicker liquid."""
+    """From 0.1 to 5 Pa·s the sphere reaches a terminal speed, and a lower one in each
+    thicker liquid."""
     terminal = [r.terminal for r in settling_plain]
     assert np.all(np.isfinite(terminal)) and np.all(np.diff(terminal) < 0), terminal
 
@@ -369,8 +369,8 @@ def test_with_the_corrected_pressure_the_sphere_settles_at_the_closed_form(
 def test_in_the_stokes_regime_the_corrected_sphere_nears_the_closed_form_as_the_spacing_shrinks(
     settling_corrected,
 ) -> None:
-    """At 5 and 50 Pa·s (Re < 1, where the closed form is sharp) the sphere's shortfall is
-    the discretisation's: smaller at 4 mm than at 5 mm."""
+    """At 5 and 50 Pa·s (Re < 1, where the closed form is sharp) the sphere's shortfall
+    shrinks with the spacing: smaller at 4 mm than at 5 mm."""
     for mu in (5.0, 50.0):
         finer = abs(settling_corrected[FINER_SPACING][mu] - 1.0)
         shipped = abs(settling_corrected[SHIPPED_SPACING][mu] - 1.0)
