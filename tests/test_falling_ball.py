@@ -7,6 +7,7 @@ import math
 
 import pytest
 
+from pourbench.errors import InvalidParameterError
 from pourbench.fluids.falling_ball import (
     GRAVITY,
     MARBLE_DENSITY,
@@ -97,3 +98,9 @@ def test_a_fast_sphere_needs_a_long_fall_to_reach_its_terminal_speed() -> None:
     assert startup_fall(0.1, *args) > 0.09
     assert startup_fall(5.0, *args) < 0.005
     assert startup_fall(0.1, *args, fraction=0.9) < startup_fall(0.1, *args)
+
+
+def test_a_start_up_fraction_outside_zero_to_one_is_refused() -> None:
+    """The terminal speed is approached, never reached: a fraction of 1 or more has no fall."""
+    with pytest.raises(InvalidParameterError, match="fraction"):
+        startup_fall(1.0, 1000.0, fraction=1.0)

@@ -14,8 +14,7 @@ leave out two factors that dominate in this setup.
 
 A sphere released from rest takes a while to reach that speed: :func:`startup_fall` is how far
 the same drag (taken as quasi-steady, plus the added mass of half the displaced liquid)
-lets it fall first; in 0.1 Pa·s the 1.5 cm glass sphere of ``validation.falling_ball`` needs
-11 cm, in 5 Pa·s 2 mm.
+lets it fall first, centimetres at Re in the hundreds, a fraction of a radius at Re ≪ 1.
 
 The marble itself is not in the thesis: a standard 15.9 mm (5/8 in) glass marble of
 2500 kg/m³ is assumed. Where the corrected fall is slow (Re of a few or less: dish soap, hand
@@ -30,6 +29,8 @@ import math
 
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
+
+from pourbench.errors import InvalidParameterError
 
 GRAVITY = 9.81
 """m/s²."""
@@ -108,7 +109,7 @@ def startup_fall(
     slows the approach further, so this is a lower bound on the fall a measurement of the
     terminal speed must leave behind it."""
     if not 0.0 < fraction < 1.0:
-        raise ValueError(f"fraction must be in (0, 1), got {fraction!r}")
+        raise InvalidParameterError(f"fraction must be in (0, 1), got {fraction!r}")
     rest = (liquid_density, radius, marble_density, bore_radius)
     target = fraction * terminal_speed(viscosity, *rest)[0]
     volume = 4.0 / 3.0 * math.pi * radius**3

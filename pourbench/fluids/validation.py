@@ -507,14 +507,50 @@ def newtonian(viscosity_pa_s: float, density: float = 1000.0) -> LiquidProfile:
     )
 
 
+BALL_RADIUS = 0.015
+"""m: :func:`falling_ball`'s glass sphere."""
+
+BALL_DENSITY = 2500.0
+"""kg/m³: soda-lime glass."""
+
+BALL_BORE = 0.05
+"""m: the inner radius of :func:`falling_ball`'s cylinder."""
+
+BALL_COLUMN = 0.14
+"""m: :func:`falling_ball`'s column of liquid, Table 3.4's check."""
+
+RELEASE_DEPTH = 0.005
+"""m: how far under the surface the sphere's top is released."""
+
+
+def stretch_start(
+    liquid: LiquidProfile, radius: float, ball_density: float, bore: float, startup: float | None
+) -> float:
+    """m of fall: where :func:`falling_ball` starts timing the sphere in ``liquid``. A radius
+    below the release; with ``startup`` = f, where the closed form's start-up from rest
+    reaches f of its terminal speed if that is deeper
+    (:func:`~pourbench.fluids.falling_ball.startup_fall`)."""
+    if startup is None or not liquid.viscosity_pa_s:
+        return radius
+    fall = startup_fall(liquid.viscosity_pa_s, liquid.density, radius, ball_density, bore, startup)
+    return max(radius, fall)
+
+
+def column_for(start: float, radius: float) -> float:
+    """m: the shallowest column in which a stretch that starts ``start`` below the release
+    and is a diameter long ends with the sphere's centre 5 radii above the floor."""
+    release = RELEASE_DEPTH + radius  # the sphere's centre under the surface at release
+    return release + start + 2.0 * radius + 5.0 * radius
+
+
 def falling_ball(
     liquids: Sequence[str | LiquidProfile],
-    radius: float = 0.015,
-    bore: float = 0.05,
-    depth: float = 0.14,
+    radius: float = BALL_RADIUS,
+    bore: float = BALL_BORE,
+    depth: float = BALL_COLUMN,
     seconds: float = 3.0,
     settle: float = 1.0,
-    ball_density: float = 2500.0,
+    ball_density: float = BALL_DENSITY,
     config: SolverConfig | None = None,
     startup: float | None = None,
 ) -> list[FallingBall]:
@@ -523,10 +559,8 @@ def falling_ball(
     of a cylinder of inner radius ``bore`` holding ``depth`` of each liquid (one world each).
     The sphere is held with its top 5 mm under the surface while the liquid settles for
     ``settle`` s, then released for at most ``seconds``; one that comes within a radius of the
-    floor is held there. The stretch measured starts a radius below the release; with
-    ``startup`` = f, where the closed form's own start-up from rest reaches f of its terminal
-    speed if that is deeper (:func:`~pourbench.fluids.falling_ball.startup_fall`; 0.98
-    measures a terminal speed, the default times the thesis' marble as it was timed).
+    floor is held there. The stretch measured starts at :func:`stretch_start` (``startup``
+    0.98 measures a terminal speed; the default times the thesis' marble as it was timed).
     It is a diameter long and must end with the sphere's centre 5 radii above the floor or
     higher (nearer, the floor slows it: Brenner's factor is 1 + 9R/8z to first order, 1.2
     there): a column too short for it is an :class:`InvalidParameterError`. Its three thirds
@@ -534,12 +568,23 @@ def falling_ball(
     run ends once every sphere has. The closed form is Stokes' drag with the cylinder's
     Haberman–Sayre factor and the Schiller–Naumann inertia term
     (:func:`pourbench.fluids.falling_ball.terminal_speed`)."""
+    profiles = [liquid_profile(liquid) for liquid in liquids]
+    starts = np.array([stretch_start(p, radius, ball_density, bore, startup) for p in profiles])
+    for p, start in zip(profiles, starts, strict=True):
+        if column_for(start, radius) > depth + 1e-9:
+            raise InvalidParameterError(
+                f"a {depth * 100:g} cm column is too short to time the sphere in {p.name!r}: "
+                f"its stretch starts {start * 100:.1f} cm below the release and is "
+                f"{2 * radius * 100:g} cm long; it needs {column_for(start, radius) * 100:.1f} cm"
+            )
+    ends = starts + 2.0 * radius
+    lowest = depth - RELEASE_DEPTH - 3.0 * radius  # a fall that ends a radius above the floor
     cfg = config or SolverConfig()
     n = len(liquids)
     mass = ball_density * 4.0 / 3.0 * math.pi * radius**3
     shape = cup(bore, depth + 4.0 * radius, wall=0.01)
     floor = shape.bottom_z
-    z0 = floor + depth - radius - 0.005
+    z0 = floor + depth - radius - RELEASE_DEPTH
     xml = f"""<mujoco><option timestep="{cfg.dt!r}"/><worldbody>
       <body name="ball" pos="0 0 {z0!r}"><joint type="slide" axis="0 0 1"/>
         <geom name="ball" type="sphere" size="{radius!r}" mass="{mass!r}"/>
@@ -550,20 +595,6 @@ def falling_ball(
     coupling = MujocoCoupling(s, model, datas)
     coupling.add_geoms(["ball"])
     ball_volume = 4.0 / 3.0 * math.pi * radius**3
-    lowest = depth - 3.0 * radius - 0.005  # a fall that ends a radius above the floor
-    starts = np.full(n, radius)
-    for w, liquid in enumerate(liquids):
-        p = liquid_profile(liquid)
-        if startup is not None and p.viscosity_pa_s:
-            fall = startup_fall(p.viscosity_pa_s, p.density, radius, ball_density, bore, startup)
-            starts[w] = max(radius, fall)
-        if starts[w] + 2.0 * radius > lowest - 3.0 * radius + 1e-9:
-            raise InvalidParameterError(
-                f"a {depth * 100:g} cm column is too short to time the sphere in {p.name!r}: "
-                f"its stretch starts {starts[w] * 100:.1f} cm below the release, is "
-                f"{2 * radius * 100:g} cm long and must end by {(lowest - 3 * radius) * 100:.1f} cm"
-            )
-    ends = starts + 2.0 * radius
     for w, liquid in enumerate(liquids):
         s.set_liquid(w, liquid)
         rho = s.liquids[w].density
@@ -619,43 +650,39 @@ def settling_sphere(
     """The falling ball's sphere (:func:`falling_ball`'s defaults) settling in a Newtonian
     liquid of each of ``viscosities`` (Pa·s, :func:`newtonian`), timed at its terminal speed:
     each stretch starts where the closed form's start-up has reached
-    :data:`SETTLING_STARTUP` of it, in one column deep enough for the longest start-up (the
-    14 cm of Table 3.4's check or more: 24 cm with 0.1 Pa·s, where the sphere needs 11 cm of
-    fall). Each run waits until its spheres have crossed their stretches at
-    :data:`SETTLING_SLOWEST` of the closed form; spheres whose waits are within
-    :data:`SETTLING_SHARED_WAIT` of each other share a run, so that a quick one does not
-    wait on a slow one. The results in the order of ``viscosities``."""
-    radius, ball_density, bore = 0.015, 2500.0, 0.05
-    clearance = 6.0 * radius + 0.005  # release 5 mm under the surface, stop 5 radii above the floor
-    waits, deepest = [], 0.14
-    for mu in viscosities:
-        start = max(radius, startup_fall(mu, 1000.0, radius, ball_density, bore, SETTLING_STARTUP))
-        deepest = max(deepest, start + 2.0 * radius + clearance)
-        closed = terminal_speed(mu, 1000.0, radius, ball_density, bore)[0]
-        waits.append((start + 2.0 * radius) / (SETTLING_SLOWEST * closed))
+    :data:`SETTLING_STARTUP` of it, in one column deep enough for the longest start-up
+    (:data:`BALL_COLUMN` or deeper, to the next centimetre). Each run waits until its spheres
+    have crossed their stretches at :data:`SETTLING_SLOWEST` of the closed form; spheres
+    whose waits are within :data:`SETTLING_SHARED_WAIT` of each other share a run, so that a
+    quick one does not wait on a slow one. The results in the order of ``viscosities``."""
+    liquids = [newtonian(mu) for mu in viscosities]
+    starts = [
+        stretch_start(p, BALL_RADIUS, BALL_DENSITY, BALL_BORE, SETTLING_STARTUP) for p in liquids
+    ]
+    deepest = max([BALL_COLUMN, *(column_for(start, BALL_RADIUS) for start in starts)])
     depth = math.ceil(round(deepest * 100.0, 6)) / 100.0
+    waits = []  # s: how long each sphere takes to cross its stretch at the slowest we wait for
+    for p, start in zip(liquids, starts, strict=True):
+        closed = terminal_speed(p.viscosity_pa_s, p.density, BALL_RADIUS, BALL_DENSITY, BALL_BORE)
+        waits.append((start + 2.0 * BALL_RADIUS) / (SETTLING_SLOWEST * closed[0]))
     runs: list[list[int]] = []
-    for i in sorted(range(len(viscosities)), key=waits.__getitem__):
+    for i in sorted(range(len(liquids)), key=waits.__getitem__):
         if runs and waits[i] <= SETTLING_SHARED_WAIT * waits[runs[-1][0]]:
             runs[-1].append(i)
         else:
             runs.append([i])
-    out: list[FallingBall | None] = [None] * len(viscosities)
+    results: dict[int, FallingBall] = {}
     for members in runs:
         members.sort()
-        results = falling_ball(
-            [newtonian(viscosities[i]) for i in members],
-            radius=radius,
-            bore=bore,
+        balls = falling_ball(
+            [liquids[i] for i in members],
             depth=depth,
             seconds=max(waits[i] for i in members),
-            ball_density=ball_density,
             config=config,
             startup=SETTLING_STARTUP,
         )
-        for i, result in zip(members, results, strict=True):
-            out[i] = result
-    return [r for r in out if r is not None]
+        results.update(zip(members, balls, strict=True))
+    return [results[i] for i in range(len(liquids))]
 
 
 SHEAR_VISCOSITIES = (0.1, 1.0, 10.0)
