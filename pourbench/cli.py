@@ -42,6 +42,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             from pourbench.bench.env_pinned import resolve_commit
 
             resolve_commit(against, Path(__file__).resolve().parent.parent)
+    if getattr(args, "finished", False) and "ablation" not in suites:
+        raise InvalidParameterError(f"--finished: bench {args.suite} has no recorded runs")
     if args.device == "cuda":
         from pourbench.fluids.solver import cuda_available
 
@@ -203,6 +205,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="env: alternate each CPU case with Pour-v0 as this earlier commit steps it "
         "(default: f8f94b4, the code before the batched step, left out with --quick; none: "
         "no comparison); needs the project's git checkout",
+    )
+    bench.add_argument(
+        "--finished",
+        action="store_true",
+        help="ablation: the table and figure of the runs whose records are in "
+        "<out>/ablation_runs/, training none",
     )
     bench.set_defaults(func=_cmd_bench)
 

@@ -205,3 +205,37 @@ def test_the_committed_records_are_runs_of_the_ablation_as_it_stands() -> None:
         result, series = ablation.finished_run(name, int(seed), False, records=records)
         assert result["timesteps"] >= ablation.BUDGET_STEPS
         assert len(series["eval/mean_abs_error_g"]) == 10, path
+
+
+def test_finished_reports_the_recorded_runs_and_trains_none(tmp_path, monkeypatch) -> None:
+    """``--finished`` builds the table and figure from the records alone: a variant without
+    one is left out of the table and named as not yet trained, and nothing is trained."""
+    import shutil
+    from pathlib import Path
+
+    def refuse(*_):
+        raise AssertionError("--finished trained a run")
+
+    monkeypatch.setattr(ablation, "train_variant", refuse)
+    committed = Path(__file__).parents[1] / "leaderboard" / ablation.RECORDS
+    records = tmp_path / "lb" / ablation.RECORDS
+    records.mkdir(parents=True)
+    for stem in ("ppo-seed0", "ppo-seed1", "ppo_icm-seed0"):
+        shutil.copy(committed / f"{stem}.json", records)
+    args = argparse.Namespace(
+        quick=False, no_write=False, out=str(tmp_path / "lb"), json=False, finished=True
+    )
+    assert ablation.run(args) == 0
+    data = json.loads((tmp_path / "lb" / "ablation.json").read_text())
+    assert [(r["variant"], r["seeds"]) for r in data["rows"]] == [("ppo", 2), ("ppo_icm", 1)]
+    kept = json.loads((records / "ppo-seed1.json").read_text())
+    assert data["rows"][0]["best_eval_error_g"] <= kept["result"]["mean_abs_error_g"]
+    report = (tmp_path / "lb" / "ablation.md").read_text()
+    assert "not yet trained `ppo_icm_curriculum` seed 0" in report and "`td3` seed 2" in report
+    assert (tmp_path / "lb" / "ablation.png").is_file()
+
+    empty = argparse.Namespace(**{**vars(args), "out": str(tmp_path / "none")})
+    with pytest.raises(InvalidParameterError, match="no finished run's record"):
+        ablation.run(empty)
+    with pytest.raises(InvalidParameterError, match="not with --quick"):
+        ablation.run(argparse.Namespace(**{**vars(args), "quick": True}))

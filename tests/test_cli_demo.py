@@ -96,6 +96,12 @@ def test_bench_output_folder_is_checked_before_any_work(tmp_path, capsys) -> Non
     assert a_file.read_text() == "keep me"
 
 
+def test_finished_is_the_ablations_alone(capsys) -> None:
+    """``--finished`` reads the ablation's run records; another suite refuses it up front."""
+    assert main(["bench", "env", "--quick", "--finished"]) == 2
+    assert "--finished: bench env has no recorded runs" in capsys.readouterr().err
+
+
 def _suite(name: str, rc: int, calls: list[str]):
     """A benchmark suite module that records its call and prints its JSON object."""
     import types

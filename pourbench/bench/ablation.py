@@ -186,20 +186,35 @@ def finished_run(
     reached the budget is read back without ``runs`` (a record of other settings is refused,
     as a run is); otherwise the run is trained, resumed or read back from ``runs``
     (:func:`train_variant`) and its record written there."""
-    record = None if records is None else records / f"{name}-seed{seed}.json"
-    if record is not None and record.is_file():
-        kept = json.loads(record.read_text())
-        _refuse_other(kept["result"], name, _steps(quick), str(record))
-        if kept["result"]["timesteps"] >= _steps(quick):
-            print(f"ablation: {name} seed {seed} read back from {record}", file=sys.stderr)
-            series = {k: [(float(s), float(v)) for s, v in kept["curves"].get(k, [])] for k in KEYS}
-            return kept["result"], series
+    if records is not None:
+        kept = recorded_run(name, seed, quick, records)
+        if kept is not None:
+            return kept
     result = train_variant(name, seed, quick, runs)
     series = curves(Path(result["args"]["out"]))
-    if record is not None:
+    if records is not None:
+        record = records / f"{name}-seed{seed}.json"
         record.parent.mkdir(parents=True, exist_ok=True)
         write_text_atomic(record, json.dumps({"result": result, "curves": series}, indent=1) + "\n")
     return result, series
+
+
+def recorded_run(
+    name: str, seed: int, quick: bool, records: Path
+) -> tuple[dict[str, Any], dict[str, Series]] | None:
+    """The record ``<records>/<name>-seed<seed>.json`` of a run that reached the budget, as
+    ``(result, curves)``; ``None`` when there is none or it stopped short. A record of other
+    settings than the variant's is refused, as a run is."""
+    record = records / f"{name}-seed{seed}.json"
+    if not record.is_file():
+        return None
+    kept = json.loads(record.read_text())
+    _refuse_other(kept["result"], name, _steps(quick), str(record))
+    if kept["result"]["timesteps"] < _steps(quick):
+        return None
+    print(f"ablation: {name} seed {seed} read back from {record}", file=sys.stderr)
+    series = {k: [(float(s), float(v)) for s, v in kept["curves"].get(k, [])] for k in KEYS}
+    return kept["result"], series
 
 
 def curves(out: Path) -> dict[str, Series]:
@@ -257,8 +272,10 @@ def plot(runs: dict[str, list[dict[str, Series]]], png: Path) -> Path:
         ax.grid(alpha=0.3)
         if ax.lines:
             ax.legend(fontsize=8)
+    learners = ", ".join(v["algorithm"].upper() for v in OFF_POLICY.values())
     fig.suptitle(
-        "PPO, + curiosity, + curriculum (thesis Figures 6.7 and 6.8), and SAC", fontsize=10
+        f"PPO, + curiosity, + curriculum (thesis Figures 6.7 and 6.8), and {learners}",
+        fontsize=10,
     )
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
@@ -310,13 +327,25 @@ def run(args: argparse.Namespace) -> int:
     sha = git_sha()
     seeds = SEEDS[:1] if args.quick else SEEDS
     out = Path(args.out)
+    only_recorded = getattr(args, "finished", False)
+    if only_recorded and args.quick:
+        raise InvalidParameterError("--finished reads the full runs' records; not with --quick")
     records = None if args.quick or args.no_write else out / RECORDS
     finished: dict[str, list[tuple[dict[str, Any], dict[str, Series]]]] = {
         name: [] for name in variant_names()
     }
+    missing = []
     for k in seeds:  # every variant's first seed first: a stopped ablation compares them sooner
         for name in variant_names():
-            finished[name].append(finished_run(name, k, args.quick, records=records))
+            if not only_recorded:
+                finished[name].append(finished_run(name, k, args.quick, records=records))
+            elif (kept := recorded_run(name, k, False, out / RECORDS)) is not None:
+                finished[name].append(kept)
+            else:
+                missing.append(f"`{name}` seed {k}")
+    finished = {name: runs for name, runs in finished.items() if runs}
+    if not finished:
+        raise InvalidParameterError(f"--finished: no finished run's record in {out / RECORDS}")
     results = {name: [r for r, _ in runs] for name, runs in finished.items()}
     runs = {name: [c for _, c in runs] for name, runs in finished.items()}
     rows = rows_of(results, runs)
@@ -340,6 +369,14 @@ def run(args: argparse.Namespace) -> int:
             f"{TARGET_G:g} g; `random_eval_error_g`: a random policy on the same episodes. "
             "Each run's sessions (command, git SHA, machine) are in its `state.json`.",
             "",
+            *(
+                [
+                    f"The finished runs only (`--finished`): not yet trained {', '.join(missing)}.",
+                    "",
+                ]
+                if missing
+                else []
+            ),
             markdown_table(rows),
             "",
             "![ablation](ablation.png)" if not args.no_write else "",
