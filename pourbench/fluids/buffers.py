@@ -59,6 +59,7 @@ class DeviceBuffers:
     wall: wp.array  # nearest wall (K.predict)
     wall_collider: wp.array
     density: wp.array
+    scorr_mean: wp.array  # kernel-weighted mean s_corr of a particle's pairs (bulk_scorr_spread)
     contacts: wp.array
     order_keys: wp.array
     order: wp.array
@@ -131,7 +132,7 @@ class DeviceBuffers:
             top=floats(top),
             bottom=floats(bottom),
             **{name: zeros(n) for name in vectors},
-            **{name: zeros(n, float) for name in ("lam", "push", "clear", "density")},
+            **{name: zeros(n, float) for name in ("lam", "push", "clear", "density", "scorr_mean")},
             sums=zeros(n, K.vec5),
             corr=zeros(n if cfg.corrected_pressure else 1, wp.mat33),
             vsum=zeros(n, wp.vec4),

@@ -38,6 +38,14 @@ class SolverConfig:
         scorr_k, scorr_n, scorr_dq: tensile-instability term s_corr = −k (W(r)/W(Δq))^n,
             with Δq = scorr_dq × h, offset at free surfaces so that it does not push a flat
             surface outward (:func:`scorr_offset`, docs/contact.md).
+        bulk_scorr_spread: the share of s_corr's pair-to-pair variation kept in the bulk
+            (at rest density or denser): a pair's term there is its two particles'
+            kernel-weighted mean s_corr plus this share of the pair's own difference from it.
+            1 (the default) is Macklin & Müller's term. The steep variation is what calms a
+            settled packing and also what makes it resist shear like a packed solid: lower,
+            a sheared liquid carries less stress at zero rate and a settling sphere falls
+            faster, and a settled liquid jitters more (docs/viscosity.md, "The bulk's
+            tensile term").
         max_neighbours: capacity of a particle's neighbour list (full lists: all its
             neighbours; half lists: the pairs it owns). At rest density a particle has about
             33 neighbours within h, at the foot of a collapsing 25 cm column (the bench's dam
@@ -131,6 +139,7 @@ class SolverConfig:
     scorr_k: float = 0.1
     scorr_n: float = 4.0
     scorr_dq: float = 0.2
+    bulk_scorr_spread: float = 1.0
     max_neighbours: int = 96
     pair_lists: str = "auto"
     sor: float = 0.7
@@ -167,6 +176,10 @@ class SolverConfig:
             )
         if not 0.0 <= check_finite("scorr_dq", self.scorr_dq) < 1.0:
             raise InvalidParameterError(f"scorr_dq must be in [0, 1) (of h), got {self.scorr_dq!r}")
+        if not 0.0 <= check_finite("bulk_scorr_spread", self.bulk_scorr_spread) <= 1.0:
+            raise InvalidParameterError(
+                f"bulk_scorr_spread must be in [0, 1], got {self.bulk_scorr_spread!r}"
+            )
         for name in (
             *("relaxation", "scorr_k", "scorr_n", "viscosity_rate", "xsph_viscosity"),
             *("sleep_threshold", "cohesion_accel", "surface_tension_accel", "adhesion_gain"),

@@ -127,6 +127,18 @@ def pair_lambda(li: float, lj: float, di: float, dj: float, koff: float, band: f
 
 
 @wp.func
+def bulk_spread(
+    scorr_ij: float, mean_i: float, mean_j: float, di: float, dj: float, band: float, spread: float
+) -> float:
+    """What a pair's s_corr (``scorr_ij``) loses to ``SolverConfig.bulk_scorr_spread``: its
+    difference from its particles' mean s_corr (``mean_i``, ``mean_j``) times 1 − ``spread``,
+    weighted by the pair's share of the bulk (1 − its share of a free surface, as in
+    :func:`pair_lambda`)."""
+    bulk = 1.0 - wp.clamp((1.0 - wp.min(di, dj)) / band, 0.0, 1.0)
+    return bulk * (1.0 - spread) * (scorr_ij - 0.5 * (mean_i + mean_j))
+
+
+@wp.func
 def delta_term(r: wp.vec3, lam_sum: float, h: float, grad_c: float, scorr: wp.vec4) -> wp.vec3:
     """A pair's share of Δp_i: (λ_i + λ_j + s_corr) ∇_i W_ij, ``lam_sum`` from
     :func:`pair_lambda`."""
@@ -431,20 +443,27 @@ def compute_lambda(
     eps: float,
     world: wp.array(dtype=wp.int32),
     active: wp.array(dtype=wp.int32),
+    spread: float,
     lam: wp.array(dtype=float),
     density: wp.array(dtype=float),
     worst: wp.array(dtype=float),
+    scorr_mean: wp.array(dtype=float),
 ):
     """λ of every particle of an active world from its density sums (half lists; full lists
     compute it at the end of their density pass); clears the sums and records each world's
-    largest density error (:func:`record_worst`)."""
+    largest density error (:func:`record_worst`). With ``spread`` below 1
+    (``SolverConfig.bulk_scorr_spread``) ``scorr_mean`` holds Σ_j W_ij s_corr_ij on entry and
+    the mean Σ_j W_ij s_corr_ij / Σ_j W_ij on return."""
     i = wp.tid()
     w = world[i]
     if active[w] == 0:
         return
-    d = density_and_lambda(sums[i], h, w0, eps, wall[i], p[i], wall_coef)
+    sums_i = sums[i]
+    d = density_and_lambda(sums_i, h, w0, eps, wall[i], p[i], wall_coef)
     density[i] = d[0]
     lam[i] = d[1]
+    if spread < 1.0:
+        scorr_mean[i] = scorr_mean[i] / wp.max(sums_i[3], 1.0e-12)
     sums[i] = vec5(0.0)
     record_worst(worst, w, d[0])
 
@@ -706,11 +725,13 @@ def pair_kernels(half: bool) -> PairKernels:
         wall_coef: float,
         world: wp.array(dtype=wp.int32),
         active: wp.array(dtype=wp.int32),
+        spread: float,
         sums: wp.array(dtype=vec5),
         pair: wp.array(dtype=wp.vec2),
         lam: wp.array(dtype=float),
         density: wp.array(dtype=float),
         worst: wp.array(dtype=float),
+        scorr_mean: wp.array(dtype=float),
     ):
         """Pair sums of the density constraint: Σ_j ∇_i C, Σ_j W_ij and Σ_j |∇_j C|². Half lists
         add them to ``sums`` (zero on entry; :func:`compute_lambda` turns them into λ and clears
@@ -720,19 +741,24 @@ def pair_kernels(half: bool) -> PairKernels:
         With half lists each pair's gradient factor (∇W_ij = factor · r_ij) and tensile term
         s_corr (:func:`density_pair`) go to ``pair`` for :func:`compute_delta`. Particles of
         worlds no longer ``active`` (see :func:`update_active`) are skipped.
+
+        With ``spread`` below 1 (``SolverConfig.bulk_scorr_spread``) the kernel-weighted sum of
+        the particle's s_corr, Σ_j W_ij s_corr_ij, goes to ``scorr_mean`` (zero on entry with
+        half lists; :func:`compute_lambda` divides it by Σ_j W_ij), full lists writing the mean.
         """
         i = wp.tid()
         if active[world[i]] == 0:
             return
         pi = p[i]
         acc = vec5(0.0)
+        ws = float(0.0)  # Σ_j W_ij s_corr_ij, with spread below 1
         # while-loops compile to tighter CPU code than range() loops in Warp
         k = nbr_start[i]
         k_end = k + nbr_count[i] * stride
         if wp.static(not half):
             # four neighbours an iteration: their loads are independent, so a GPU thread has
             # four in flight instead of waiting for each (the tail is left to the loop below)
-            while k + 3 * stride < k_end:
+            while spread == 1.0 and k + 3 * stride < k_end:
                 j0, j1 = nbr[k], nbr[k + stride]
                 j2, j3 = nbr[k + 2 * stride], nbr[k + 3 * stride]
                 r0, r1, r2, r3 = pi - p[j0], pi - p[j1], pi - p[j2], pi - p[j3]
@@ -753,10 +779,18 @@ def pair_kernels(half: bool) -> PairKernels:
             acc += vec5(g[0], g[1], g[2], w, g2)
             if wp.static(half):
                 wp.atomic_add(sums, j, vec5(-g[0], -g[1], -g[2], w, g2))
+            if spread < 1.0:
+                ws += w * terms[1]
+                if wp.static(half):
+                    wp.atomic_add(scorr_mean, j, w * terms[1])
             k += stride
         if wp.static(half):
             wp.atomic_add(sums, i, acc)
+            if spread < 1.0:
+                wp.atomic_add(scorr_mean, i, ws)
         else:  # full lists: the sums are complete, so λ follows here (no compute_lambda)
+            if spread < 1.0:
+                scorr_mean[i] = ws / wp.max(acc[3], 1.0e-12)
             d = density_and_lambda(acc, h, w0, eps, wall[i], pi, wall_coef)
             density[i] = d[0]
             lam[i] = d[1]
@@ -783,6 +817,8 @@ def pair_kernels(half: bool) -> PairKernels:
             world: wp.array(dtype=wp.int32),
             active: wp.array(dtype=wp.int32),
             corr: wp.array(dtype=wp.mat33),
+            spread: float,
+            scorr_mean: wp.array(dtype=float),
             delta: wp.array(dtype=wp.vec3),
         ):
             """Δp_i = Σ_j (λ_i + λ_j + s_corr) ∇W_ij (Jacobi), s_corr's offset weighted by the
@@ -793,7 +829,11 @@ def pair_kernels(half: bool) -> PairKernels:
 
             Corrected (``SolverConfig.corrected_pressure``), a pair's term is multiplied by the
             mean of its particles' matrices in ``corr`` (:func:`correction_matrices`), which
-            keeps the two particles' terms opposite; the plain kernel does not read ``corr``."""
+            keeps the two particles' terms opposite; the plain kernel does not read ``corr``.
+
+            With ``spread`` below 1 (``SolverConfig.bulk_scorr_spread``) a pair's s_corr in the
+            bulk keeps that share of its difference from its particles' means in
+            ``scorr_mean`` (:func:`bulk_spread`)."""
             i = wp.tid()
             if active[world[i]] == 0:
                 return
@@ -808,7 +848,7 @@ def pair_kernels(half: bool) -> PairKernels:
                 ci = corr[i]
             if wp.static(not half and not corrected):
                 # four neighbours an iteration, as in density_sums
-                while k + 3 * stride < k_end:
+                while spread == 1.0 and k + 3 * stride < k_end:
                     j0, j1 = nbr[k], nbr[k + stride]
                     j2, j3 = nbr[k + 2 * stride], nbr[k + 3 * stride]
                     r0, r1, r2, r3 = pi - p[j0], pi - p[j1], pi - p[j2], pi - p[j3]
@@ -824,13 +864,19 @@ def pair_kernels(half: bool) -> PairKernels:
             while k < k_end:
                 j = nbr[k]
                 r = pi - p[j]
-                lam_sum = pair_lambda(li, lam[j], di, density[j], koff, band)
+                dj = density[j]
+                lam_sum = pair_lambda(li, lam[j], di, dj, koff, band)
                 t = wp.vec3(0.0)
+                e = wp.vec2(0.0)
                 if wp.static(half):
                     e = pair[k]
-                    t = r * ((lam_sum + e[1]) * e[0])
                 else:
-                    t = delta_term(r, lam_sum, h, grad_c, scorr)
+                    terms = density_pair(wp.dot(r, r), h, grad_c, scorr)
+                    e = wp.vec2(terms[0], terms[1])
+                if spread < 1.0:
+                    mi, mj = scorr_mean[i], scorr_mean[j]
+                    lam_sum -= bulk_spread(e[1], mi, mj, di, dj, band, spread)
+                t = r * ((lam_sum + e[1]) * e[0])
                 if wp.static(corrected):
                     t = 0.5 * ((ci + corr[j]) * t)
                 dp += t

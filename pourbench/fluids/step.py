@@ -223,6 +223,8 @@ class StepLaunches:
         tag = "_extra" if extra else ""
         scorr = wp.vec4(0.0, 4.0, 1.0, 0.0) if extra else self.scorr
         b.worst.zero_()
+        if cfg.bulk_scorr_spread < 1.0:
+            b.scorr_mean.zero_()  # half lists sum into it
         self.launch(
             "density_sums" + tag,
             self.pairk.density_sums,
@@ -238,8 +240,9 @@ class StepLaunches:
                 self.k.wall_coef,
                 b.world,
                 b.active,
+                cfg.bulk_scorr_spread,
             ],
-            [b.sums, b.pair, b.lam, b.density, b.worst],
+            [b.sums, b.pair, b.lam, b.density, b.worst, b.scorr_mean],
         )
         if self.half_lists:  # full lists compute λ in the density pass
             self.launch(
@@ -255,8 +258,9 @@ class StepLaunches:
                     self.k.eps,
                     b.world,
                     b.active,
+                    cfg.bulk_scorr_spread,
                 ],
-                [b.lam, b.density, b.worst],
+                [b.lam, b.density, b.worst, b.scorr_mean],
             )
         pairk = self.pairk
         delta = pairk.compute_delta_corrected if cfg.corrected_pressure else pairk.compute_delta
@@ -276,6 +280,8 @@ class StepLaunches:
                 b.world,
                 b.active,
                 b.corr,
+                cfg.bulk_scorr_spread,
+                b.scorr_mean,
             ],
             [b.delta],
         )

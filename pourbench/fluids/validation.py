@@ -72,6 +72,7 @@ def rest_in_cup(
     device: str = "cpu",
     samples: int = 12,
     sleep_threshold: float = 0.0,
+    config: SolverConfig | None = None,
 ) -> tuple[RestResult, ...]:
     """Fill a cup (radius 4 cm) with water at rest density and let it settle; in each of
     ``windows`` (s, in time order, one run for all) sample speeds, kernel density and the
@@ -80,10 +81,13 @@ def rest_in_cup(
     The mass per volume is the liquid's mass over the cup's cross-section times its level,
     the level being twice its particles' mean height above the cup's floor: exact for a
     column of layers a spacing apart, which is how a settled particle liquid stands. A probe
-    with sharp bounds counts whole layers in or out (docs/rest.md)."""
+    with sharp bounds counts whole layers in or out (docs/rest.md). ``config`` (its device and
+    sleep threshold replaced by ``device`` and ``sleep_threshold``): the solver's settings."""
     radius = 0.04
     shape = cup(radius, 0.08)
-    cfg = SolverConfig(device=device, sleep_threshold=sleep_threshold)
+    cfg = dataclasses.replace(
+        config or SolverConfig(), device=device, sleep_threshold=sleep_threshold
+    )
     s = PBFSolver(len(masses_g), cfg)
     for w, mass in enumerate(masses_g):
         s.add_collider(w, "plane", [0.0])
@@ -697,6 +701,11 @@ fraction of its stress at the middle rate (the line through its stresses)."""
 
 SLOPE_TOLERANCE = 0.25
 """How near the liquid's viscosity that line's slope must be, as a fraction of it."""
+
+REDUCED_SCORR_SPREAD = 0.3
+"""``SolverConfig.bulk_scorr_spread`` of the corrected solve's checks with less of the bulk's
+tensile variation: of 0, 0.3, 0.6 and 1, the lowest at which settled water still comes to
+rest within its bounds (docs/viscosity.md, "The bulk's tensile term")."""
 
 YIELD_LAW_RATES = (1.0, 3.0, 10.0, 30.0)
 """1/s: the rates at which the shear cell checks a Herschel–Bulkley liquid."""
