@@ -239,3 +239,16 @@ def test_finished_reports_the_recorded_runs_and_trains_none(tmp_path, monkeypatc
         ablation.run(empty)
     with pytest.raises(InvalidParameterError, match="not with --quick"):
         ablation.run(argparse.Namespace(**{**vars(args), "quick": True}))
+
+
+def test_runs_logged_at_different_steps_are_matched_by_step() -> None:
+    """Training curves of seeds that logged at different steps (an off-policy run logs every
+    few episodes) are compared at the same steps over the whole budget, not cut to the
+    shortest run's number of entries."""
+    sparse = {"pour/error_g": [(0.0, 100.0), (100.0, 50.0), (200.0, 10.0)]}
+    dense = {"pour/error_g": [(float(s), 100.0 - 0.25 * s) for s in range(0, 201, 10)]}
+    rows = ablation.band([sparse, dense], "pour/error_g")
+    np.testing.assert_array_equal(rows[:, 0], [0.0, 100.0, 200.0])
+    np.testing.assert_allclose(rows[:, 1], [100.0, 62.5, 30.0])  # means at those steps
+    np.testing.assert_allclose(rows[:, 2], [100.0, 50.0, 10.0])
+    np.testing.assert_allclose(rows[:, 3], [100.0, 75.0, 50.0])

@@ -228,9 +228,19 @@ def curves(out: Path) -> dict[str, Series]:
 def band(runs: list[dict[str, Series]], key: str, x: str | None = None) -> np.ndarray:
     """(k, 4) rows ``(x, mean, lowest, highest)`` of ``key`` over the seeds' runs, matched by
     evaluation (or logging) index up to the shortest run; ``x`` is the mean step, or the
-    mean value of series ``x`` at the same index (an evaluation's wall time)."""
+    mean value of series ``x`` at the same index (an evaluation's wall time). Runs that
+    logged ``key`` a different number of times (an off-policy run logs every few episodes,
+    and its episodes' lengths differ from seed to seed) are matched by step instead: each
+    is interpolated at the sparsest run's steps within the steps every run covers."""
     if not runs or any(not r[key] for r in runs):
         return np.zeros((0, 4))
+    if x is None and len({len(r[key]) for r in runs}) > 1:
+        lo = max(r[key][0][0] for r in runs)
+        hi = min(r[key][-1][0] for r in runs)
+        sparsest = min(runs, key=lambda r: len(r[key]))
+        at = np.array([s for s, _ in sparsest[key] if lo <= s <= hi])
+        ys = np.array([np.interp(at, *np.array(r[key]).T) for r in runs])
+        return np.column_stack([at, ys.mean(0), ys.min(0), ys.max(0)])
     k = min(len(r[key]) for r in runs)
     if x is not None:
         k = min([k, *(len(r[x]) for r in runs)])
