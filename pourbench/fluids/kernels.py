@@ -117,13 +117,17 @@ def density_term(r: wp.vec3, h: float, grad_c: float, scorr: wp.vec4) -> vec5:
 
 
 @wp.func
+def surface_share(di: float, dj: float, band: float) -> float:
+    """A pair's share of a free surface from its sparser particle's ρ/ρ0 (``di``, ``dj``): 1
+    at or below a flat surface's density (1 − ``band``), 0 at rest density, linear between."""
+    return wp.clamp((1.0 - wp.min(di, dj)) / band, 0.0, 1.0)
+
+
+@wp.func
 def pair_lambda(li: float, lj: float, di: float, dj: float, koff: float, band: float) -> float:
     """λ_i + λ_j plus the part of s_corr's offset k c (:func:`density_pair`) a pair does not
-    take: k c (s − 1), with s the pair's share of a free surface from its sparser particle's
-    ρ/ρ0 (``di``, ``dj``): 1 at or below a flat surface's density (1 − ``band``), 0 at rest
-    density, linear between. ``koff`` = k c."""
-    share = wp.clamp((1.0 - wp.min(di, dj)) / band, 0.0, 1.0)
-    return li + lj + koff * (share - 1.0)
+    take: k c (s − 1), with s the pair's :func:`surface_share`. ``koff`` = k c."""
+    return li + lj + koff * (surface_share(di, dj, band) - 1.0)
 
 
 @wp.func
@@ -132,9 +136,8 @@ def bulk_spread(
 ) -> float:
     """What a pair's s_corr (``scorr_ij``) loses to ``SolverConfig.bulk_scorr_spread``: its
     difference from its particles' mean s_corr (``mean_i``, ``mean_j``) times 1 − ``spread``,
-    weighted by the pair's share of the bulk (1 − its share of a free surface, as in
-    :func:`pair_lambda`)."""
-    bulk = 1.0 - wp.clamp((1.0 - wp.min(di, dj)) / band, 0.0, 1.0)
+    weighted by the pair's share of the bulk, 1 − its :func:`surface_share`."""
+    bulk = 1.0 - surface_share(di, dj, band)
     return bulk * (1.0 - spread) * (scorr_ij - 0.5 * (mean_i + mean_j))
 
 
