@@ -187,6 +187,9 @@ def test_the_training_line_names_the_start_and_the_reward(monkeypatch) -> None:
     assert "gSDE" not in line
     monkeypatch.setitem(settings, "sde", True)
     assert "of the PD, exploring with gSDE, reward" in pouring.describe("x")
+    monkeypatch.setitem(settings, "progress_per_g", 0.05)
+    monkeypatch.setitem(settings, "directed_tilt", True)
+    assert "+ 0.05 per gram of progress, the directed tilt, curiosity on" in pouring.describe("x")
 
 
 def test_a_novel_container_too_small_for_the_target_is_named_not_averaged() -> None:
@@ -200,15 +203,23 @@ def test_a_novel_container_too_small_for_the_target_is_named_not_averaged() -> N
     assert mug == {"container": "mug", "pd_g": 3.0, "pd_ml": 3.0, "note": ""}
 
 
-def test_the_table_points_to_the_thesis_reward_runs(tmp_path) -> None:
-    """The training issue asks that the thesis-reward run be shown beside the shipped
-    policies: the line quotes the ablation's final evaluations, or says how to make them."""
-    assert "run `pourbench bench ablation`" in pouring.thesis_reward_line(tmp_path)
+def test_the_table_points_to_the_from_scratch_runs(tmp_path) -> None:
+    """The training issue asks that the from-scratch runs be shown beside the shipped
+    policies: the line quotes the ablation's final evaluations with their spread and the
+    reward they trained on, or says how to make them."""
+    assert "run `pourbench bench ablation`" in pouring.ablation_line(tmp_path)
     rows = [
-        {"variant": v, "steps": 200704, "final_eval_error_g": e, "random_eval_error_g": 86.26}
-        for v, e in (("ppo", 98.517), ("ppo_icm_curriculum", 86.263), ("sac", 80.0))
+        {
+            "variant": v,
+            "steps": n,
+            "final_eval_error_g": e,
+            "final_eval_sd_g": sd,
+            "random_eval_error_g": 86.26,
+        }
+        for v, n, e, sd in (("ppo", 200704, 37.164, 24.11), ("td3", 200000, 96.21, 2.764))
     ]
     (tmp_path / "ablation.json").write_text(json.dumps({"git_sha": "abc1234", "rows": rows}))
-    line = pouring.thesis_reward_line(tmp_path)
-    assert "`ppo` 98.52 g, `ppo_icm_curriculum` 86.26 g on" in line  # not SAC's own reward
-    assert "at `abc1234`, 200704 steps a run" in line and "errs by 86.26 g" in line
+    line = pouring.ablation_line(tmp_path)
+    assert "`ppo` 37.16 ± 24.11 g, `td3` 96.21 ± 2.76 g (mean" in line
+    assert "at `abc1234`, 200000–200704 steps a run" in line and "errs by 86.26 g" in line
+    assert "shaping 1 + 0.05 per gram of progress" in line

@@ -102,11 +102,14 @@ def describe(name: str) -> str:
         reward += f" + {cfg['final_error_per_g']:g} per gram of final error"
     if cfg.get("shaping"):
         reward += f" + potential-based shaping {cfg['shaping']:g}"
+    if cfg.get("progress_per_g"):
+        reward += f" + {cfg['progress_per_g']:g} per gram of progress"
     parts = [
         f"{meta['algorithm']} ({meta['policy']})",
         f"{meta['steps']} steps in {meta['wall_time_s']:.0f} s on {cfg['num_envs']} worlds",
         start,
         f"reward {reward}",
+        *(["the directed tilt"] if cfg.get("directed_tilt") else []),
         f"curiosity {'on' if cfg['icm'] else 'off'}",
         f"curriculum {'on' if cfg['curriculum'] else 'off'}"
         + (" (rehearsing the earlier lessons)" if cfg.get("rehearse") else ""),
@@ -115,27 +118,30 @@ def describe(name: str) -> str:
     return f"`{name}`: " + ", ".join(parts) + "."
 
 
-def thesis_reward_line(out: Path) -> str:
-    """One line on the thesis-reward runs beside the shipped policies: the final evaluations
-    of ``pourbench bench ablation`` from ``<out>/ablation.json``, or how to make them."""
+def ablation_line(out: Path) -> str:
+    """One line on the from-scratch runs beside the shipped policies: the final evaluations
+    of ``pourbench bench ablation`` (its reward, every variant's mean and spread over its
+    seeds) from ``<out>/ablation.json``, or how to make them."""
     path = out / "ablation.json"
     if not path.is_file():
-        return (
-            "The thesis' reward alone (Algorithm 5, no final-error term, no residual): run "
-            "`pourbench bench ablation` for its rows."
-        )
-    from pourbench.bench.ablation import VARIANTS
+        return "From scratch, with seeds: run `pourbench bench ablation` for its rows."
+    from pourbench.bench.ablation import DENSE
 
     report = json.loads(path.read_text())
-    rows = [r for r in report["rows"] if r["variant"] in VARIANTS]  # not the off-policy one
-    scores = ", ".join(f"`{r['variant']}` {r['final_eval_error_g']:.2f} g" for r in rows)
+    rows = report["rows"]
+    scores = ", ".join(
+        f"`{r['variant']}` {r['final_eval_error_g']:.2f} ± {r['final_eval_sd_g']:.2f} g"
+        for r in rows
+    )
     low, high = min(r["steps"] for r in rows), max(r["steps"] for r in rows)
     steps = f"{low}" if low == high else f"{low}–{high}"
     return (
-        f"The thesis' reward alone (Algorithm 5, no final-error term, no residual; "
-        f"`pourbench bench ablation` at `{report['git_sha']}`, {steps} steps a "
-        f"run): {scores} on its 10 water pours at the end of training, where a random policy "
-        f"errs by {rows[0]['random_eval_error_g']:.2f} g ([ablation.md](ablation.md))."
+        f"From scratch (`pourbench bench ablation` at `{report['git_sha']}`, {steps} steps a "
+        f"run, Algorithm 5 + potential-based shaping {DENSE['shaping']:g} + "
+        f"{DENSE['progress_per_g']:g} per gram of progress, no PD in the loop): {scores} "
+        "(mean ± standard deviation over the seeds) on its 10 water pours at the end of "
+        f"training, where a random policy errs by {rows[0]['random_eval_error_g']:.2f} g "
+        "([ablation.md](ablation.md))."
     )
 
 
@@ -304,7 +310,7 @@ def run(args: argparse.Namespace) -> int:
             ),
             *(f"- {describe(p)}" for p in names if p in SHIPPED),
             "",
-            thesis_reward_line(Path(args.out)),
+            ablation_line(Path(args.out)),
             "",
             "## Table 6.3's protocol",
             "",
