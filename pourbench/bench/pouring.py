@@ -3,8 +3,10 @@ containers of Figure 6.13 / Table 6.1.
 
 **Table 6.3's protocol.** Table 6.2's six liquids × 50 / 100 / 150 / 200 g × 10 pours (seeds
 0…9) on ``pourbench/Pour-v0``, the pouring container drawn by the env from its training set,
-by every policy: the shipped PourNet policies (``pournet-lstm``, ``pournet-mlp``) where they
-exist, the PD baseline and a uniform random policy; the thesis' LSTM and FNN numbers beside.
+by every policy: the shipped policies of :data:`SHIPPED` where they exist (PourNet trained
+from scratch, ``pournet-lstm`` and ``pournet-mlp``, and the residual corrections of the PD,
+``pd-residual-lstm`` and ``pd-residual-mlp``), the PD baseline and a uniform random policy;
+the thesis' LSTM and FNN numbers beside.
 
 **Novel containers.** Every container of the ``novel`` set × water 50 g × 3 pours, by the
 same policies, in grams and millilitres, beside the thesis' PourNet range for water (Table
@@ -68,7 +70,9 @@ liquid at 50 / 100 / 150 / 200 g (None: ketchup's large targets were never reach
 THESIS_WATER_ML = (3.8, 8.66)
 """Thesis Table 6.1: PourNet's mean deviation range for water over its pouring containers, ml."""
 
-SHIPPED = ("pournet-lstm", "pournet-mlp")
+SHIPPED = ("pournet-lstm", "pournet-mlp", "pd-residual-lstm", "pd-residual-mlp")
+"""The shipped policies the tables compare: PourNet trained from scratch, then the residual
+policies over the PD baseline."""
 BASELINES = ("pd", "random")
 LOG = Path("runs") / "pouring" / "episodes.jsonl"
 
@@ -77,7 +81,7 @@ Pour = tuple[str, str, str | None, float, int]  # policy, liquid, container, tar
 
 
 def policies() -> tuple[str, ...]:
-    """The shipped PourNet policies that exist, then the baselines."""
+    """The shipped policies of :data:`SHIPPED` that exist, then the baselines."""
     return (*(p for p in SHIPPED if p in shipped_policies()), *BASELINES)
 
 
