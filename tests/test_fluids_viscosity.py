@@ -395,12 +395,10 @@ def test_at_the_shipped_spacing_the_sphere_settles_at_the_closed_form_in_50_pa_s
 
 @pytest.mark.slow
 def test_with_less_tensile_spread_the_stokes_sphere_nears_its_closed_form() -> None:
-    """At 5 Pa·s and the shipped spacing (Re < 1) the corrected sphere falls short of the
-    closed form by more than half of :data:`SETTLING_TOLERANCE` with the bulk's tensile term
-    as shipped; with ``bulk_scorr_spread`` at :data:`REDUCED_SCORR_SPREAD` the packing's
-    resistance to the moving body shrinks, and the terminal speed is within half of
-    :data:`SETTLING_TOLERANCE` of the closed form (docs/viscosity.md, "The bulk's tensile
-    term")."""
+    """At 5 Pa·s and the shipped spacing (Re < 1), with ``corrected_pressure`` and
+    ``bulk_scorr_spread`` at :data:`REDUCED_SCORR_SPREAD`, the sphere's terminal speed is
+    within half of :data:`SETTLING_TOLERANCE` of the closed form (docs/viscosity.md, "The
+    bulk's tensile term", has the term as shipped beside it)."""
     config = SolverConfig(
         xsph_viscosity=0.0, corrected_pressure=True, bulk_scorr_spread=REDUCED_SCORR_SPREAD
     )
@@ -415,7 +413,7 @@ def test_with_less_tensile_spread_the_shipped_spacing_settles_at_the_closed_form
     ``bulk_scorr_spread`` at :data:`REDUCED_SCORR_SPREAD`, at the shipped spacing: its terminal
     speed is the closed form's within :data:`SETTLING_TOLERANCE` at each of
     :data:`SETTLING_VISCOSITIES`, 50 Pa·s included, where the correction alone falls short
-    (docs/viscosity.md, "The bulk's tensile term"). About 40 minutes on two cores."""
+    (docs/viscosity.md, "The bulk's tensile term", gives its numbers and its cost)."""
     config = SolverConfig(
         xsph_viscosity=0.0, corrected_pressure=True, bulk_scorr_spread=REDUCED_SCORR_SPREAD
     )
