@@ -2,7 +2,8 @@
 the tilt rate Algorithm 4 applies, so every output moves a container above the receiving one;
 the map loses none of the handler's rates, runs in training's vector env, and a saved model
 acts through it. The directed approach maps the approach output onto speeds toward the
-receiving container only."""
+receiving container only. The tilt target maps the tilt output onto the tilt the container
+turns toward, holding it where the output's tilt is the container's."""
 
 from __future__ import annotations
 
@@ -11,11 +12,12 @@ import pytest
 import torch
 
 from pourbench.agents import load_policy
-from pourbench.agents.directed import DirectedTiltVecEnv, direct, mark
+from pourbench.agents.directed import DirectedTiltVecEnv, TiltTarget, direct, mark
 from pourbench.agents.models import make_model
 from pourbench.agents.sb3 import SB3PourVecEnv
 from pourbench.agents.train import TrainArgs
 from pourbench.envs.action_handler import ActionLimits, handle_actions
+from pourbench.envs.core import PourConfig
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -31,14 +33,14 @@ def _obs(remaining_g: np.ndarray) -> np.ndarray:
     return obs
 
 
-def _tilt_change(actions: np.ndarray, weight_g: float) -> np.ndarray:
+def _tilt_change(actions: np.ndarray, weight_g: float, tilt: float = 1.0) -> np.ndarray:
     """Algorithm 4's tilt change, rad, for each action of a container above the receiving
-    one at 1 rad of tilt, the scale reading ``weight_g`` of a 100 g target."""
+    one at ``tilt`` rad, the scale reading ``weight_g`` of a 100 g target."""
     n = len(actions)
-    _, tilt, above = handle_actions(
+    _, new_tilt, above = handle_actions(
         actions,
         base=np.zeros((n, 3)),
-        tilt=np.ones(n),
+        tilt=np.full(n, tilt),
         target_pos=np.zeros((n, 3)),
         above_half_extent=np.full(n, 0.01),
         receiving_height=0.1,
@@ -48,7 +50,7 @@ def _tilt_change(actions: np.ndarray, weight_g: float) -> np.ndarray:
         dt=DT,
     )
     assert above.all()
-    return tilt - 1.0
+    return new_tilt - tilt
 
 
 def test_direct_maps_the_tilt_output_onto_the_allowed_half_and_passes_the_approach() -> None:
@@ -87,6 +89,40 @@ def test_every_directed_tilt_output_moves_the_container_and_none_is_lost(weight_
     np.testing.assert_allclose(_tilt_change(mapped, weight_g), plain[~dead], atol=1e-7)
 
 
+TARGET = TiltTarget.of(PourConfig())
+
+
+def test_the_tilt_target_scales_are_the_handlers() -> None:
+    """u = 1 is the largest tilt the handler allows; the full rate turns 0.08 rad a step."""
+    np.testing.assert_allclose(TARGET, (ActionLimits().max_tilt, ActionLimits().max_rate * DT))
+    np.testing.assert_allclose(TARGET, (2.4, 0.08))
+
+
+@pytest.mark.parametrize(("weight_g", "tilt"), [(40.0, 1.0), (99.0, 1.0), (40.0, 0.03)])
+def test_the_tilt_target_turns_toward_the_outputs_tilt_and_holds_there(weight_g, tilt) -> None:
+    """Through the map and Algorithm 4 a container at ``tilt`` lands on the output's tilt
+    θ* = (u + 1) / 2 · 2.4 where that is within a full-rate step in the direction the handler
+    allows (forward before the target, backward after), turns at the full rate toward it
+    where it is farther, and holds where θ* is on the side the handler forbids: the change
+    never moves away from θ*, and every change the plain actions make is one output's."""
+    u = np.linspace(-1.0, 1.0, 241)
+    goal = (u + 1.0) / 2.0 * TARGET.max_tilt
+    actions = np.c_[u, np.zeros_like(u)]
+    obs = _obs(np.full(len(u), 100.0 - weight_g))
+    obs[:, 11] = tilt
+    change = _tilt_change(direct(actions, obs, None, tilt_target=TARGET), weight_g, tilt)
+    forward = weight_g < 100.0 - TOLERANCE
+    allowed = goal > tilt if forward else goal < tilt
+    expected = np.where(allowed, np.clip(goal - tilt, -TARGET.step, TARGET.step), 0.0)
+    expected = np.maximum(expected, -tilt)  # the handler keeps the tilt at or above upright
+    np.testing.assert_allclose(change, expected, atol=1e-6)
+    assert np.all(np.diff(change) >= -1e-9)  # the change grows with u
+    plain = _tilt_change(np.c_[np.linspace(-1, 1, 41), np.zeros(41)], weight_g, tilt)
+    inverse = 2.0 * (tilt + plain) / TARGET.max_tilt - 1.0  # the output whose θ* is the end
+    back = direct(np.c_[inverse, np.zeros(41)], obs[:41], None, tilt_target=TARGET)
+    np.testing.assert_allclose(_tilt_change(back, weight_g, tilt), plain, atol=1e-6)
+
+
 def test_the_directed_approach_maps_onto_speeds_toward_the_receiving_container() -> None:
     """v ↦ (v + 1) / 2 with the tilt untouched when only the approach is mapped; through
     Algorithm 4 every mapped output keeps or shortens the horizontal distance to the
@@ -123,12 +159,15 @@ def test_the_directed_approach_maps_onto_speeds_toward_the_receiving_container()
     np.testing.assert_allclose(directed[-1], 0.3 - ActionLimits().max_speed * DT)
 
 
-def _directed_model(tmp_path, mean: tuple[float, float], approach: bool = False) -> str:
-    """A SAC model on a directed vector env whose deterministic action is ``mean``
-    everywhere, saved with its map."""
+def _directed_model(
+    tmp_path, mean: tuple[float, float], approach: bool = False, target: bool = False
+) -> str:
+    """A SAC model on a directed (or with ``target`` a tilt-target) vector env whose
+    deterministic action is ``mean`` everywhere, saved with its map."""
     env = SB3PourVecEnv(1, seed=0, **ENV)
-    model = make_model("sac", DirectedTiltVecEnv(env, TOLERANCE, approach), verbose=0)
-    mark(model, TOLERANCE, approach)
+    tolerance, tilt_target = (None, TARGET) if target else (TOLERANCE, None)
+    model = make_model("sac", DirectedTiltVecEnv(env, tolerance, approach, tilt_target), verbose=0)
+    mark(model, tolerance, approach, tilt_target)
     with torch.no_grad():
         model.policy.actor.mu.weight.zero_()
         model.policy.actor.mu.bias.copy_(torch.atanh(torch.tensor(mean)))
@@ -145,6 +184,10 @@ def test_a_saved_directed_model_acts_through_its_map(tmp_path) -> None:
     np.testing.assert_allclose(act(obs[1], False), [-0.6, -0.4], atol=1e-5)
     act = load_policy(_directed_model(tmp_path, (0.2, -0.4), approach=True))
     np.testing.assert_allclose(act(obs[0], True), [0.6, 0.3], atol=1e-5)
+    act = load_policy(_directed_model(tmp_path, (0.2, -0.4), target=True))
+    obs[:, 11] = [1.42, 1.5]  # θ* = 1.44 rad: a quarter of the full rate forward, then back
+    np.testing.assert_allclose(act(obs[0], True), [0.25, -0.4], atol=1e-5)
+    np.testing.assert_allclose(act(obs[1], False), [-0.75, -0.4], atol=1e-5)
 
 
 def test_the_wrapper_tilts_only_above_the_receiving_container_and_at_the_mapped_rate() -> None:
@@ -173,6 +216,9 @@ def test_the_wrapper_tilts_only_above_the_receiving_container_and_at_the_mapped_
         ({"directed_tilt": True, "warm_start_steps": 64}, "does not go with a PD residual"),
         ({"directed_approach": "yes"}, "directed_approach must be True or False"),
         ({"directed_approach": True, "residual": 0.3}, "does not go with a PD residual"),
+        ({"tilt_target": 1}, "tilt_target must be True or False"),
+        ({"tilt_target": True, "residual": 0.3}, "does not go with a PD residual"),
+        ({"tilt_target": True, "directed_tilt": True}, "both map the policy's tilt output"),
     ],
 )
 def test_bad_directed_tilt_settings_are_refused(kw, match) -> None:

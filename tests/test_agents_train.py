@@ -313,7 +313,7 @@ def _args(argv: list[str]):
             [*LSTM, "--warm-start-steps", "64", "--clone-epochs", "2", "--dagger-rounds", "1"],
             "recurrent_ppo",
         ),
-        (["--algorithm", "sac", "--no-icm", "--no-curriculum"], "sac"),
+        (["--algorithm", "sac", "--no-icm", "--no-curriculum", "--tilt-target"], "sac"),
         (["--algorithm", "tqc", "--no-icm", "--utd", "0.5"], "tqc"),
         (["--algorithm", "crossq", "--no-icm", "--no-curriculum", "--utd", "1"], "crossq"),
     ],
@@ -345,6 +345,13 @@ def test_lstm_and_off_policy_runs_save_models_that_load_policy_reads(
     act = load_policy(out / "model.zip")
     obs = np.zeros(12, np.float32)
     assert act(obs, True).shape == (2,)
+    if "--tilt-target" in flags:  # the saved model keeps the map it trained through
+        from pourbench.agents.directed import model_map
+        from pourbench.agents.loading import load_model
+
+        np.testing.assert_allclose(
+            model_map(load_model(out / "model.zip")).tilt_target, (2.4, 0.08)
+        )
 
 
 def test_the_warm_start_demonstrates_every_lesson_and_leaves_the_first() -> None:
@@ -404,6 +411,7 @@ def _state(args: dict) -> dict:
         ([], ["--target-g", "100"], "has target_g=0.0, not 100.0"),
         ([], ["--directed-tilt"], "has directed_tilt=False, not True"),
         ([], ["--directed-approach"], "has directed_approach=False, not True"),
+        ([], ["--tilt-target"], "has tilt_target=False, not True"),
         (["--no-curriculum"], ["--no-curriculum", "--liquid", "honey"],
          "has liquid='water', not 'honey'"),
     ],

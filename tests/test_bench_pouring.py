@@ -190,6 +190,11 @@ def test_the_training_line_names_the_start_and_the_reward(monkeypatch) -> None:
     monkeypatch.setitem(settings, "progress_per_g", 0.05)
     monkeypatch.setitem(settings, "directed_tilt", True)
     assert "+ 0.05 per gram of progress, the directed tilt, curiosity on" in pouring.describe("x")
+    monkeypatch.setitem(settings, "directed_tilt", False)
+    monkeypatch.setitem(settings, "tilt_target", True)
+    monkeypatch.setitem(settings, "directed_approach", True)
+    line = pouring.describe("x")
+    assert "progress, the tilt target, the directed approach, curiosity on" in line
 
 
 def test_a_novel_container_too_small_for_the_target_is_named_not_averaged() -> None:

@@ -195,10 +195,10 @@ def model_policy(model: Any) -> Policy:
     scale = getattr(model, residual.ATTRIBUTE, 0.0)
     if scale:
         return residual.residual_policy(act, scale)
-    tolerance_g, approach = directed.model_map(model)
-    if tolerance_g is None and not approach:
+    action_map = directed.model_map(model)
+    if action_map.identity:
         return act
-    return directed.directed_policy(act, tolerance_g, approach)
+    return directed.directed_policy(act, action_map)
 
 
 def load_sb3_policy(path: str | Path) -> Policy:

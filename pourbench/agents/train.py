@@ -72,6 +72,7 @@ _SAME_ON_RESUME = (
     "shaping",
     "directed_tilt",
     "directed_approach",
+    "tilt_target",
     "progress_per_g",
 )
 """Settings a resume must keep: SB3 restores its own from model.zip (batch_size, n_steps,
@@ -183,6 +184,11 @@ class TrainArgs:
             receiving container, (v + 1) / 2, so that it can no longer move the container
             away, which only delays the pour (pourbench.agents.directed). The saved model
             keeps the map.
+        tilt_target: the policy's tilt output is the tilt the container turns toward,
+            (u + 1) / 2 of the largest tilt, at the rate that reaches it within a step where
+            the full rate allows; holding a tilt is then a constant output inside the range,
+            not the squashed edge the rate maps put it at (pourbench.agents.directed). Not
+            with directed_tilt. The saved model keeps the map.
         rehearse: with the curriculum, each episode of lesson k pours a liquid of a lesson
             drawn uniformly among lessons 0…k, so the water-like liquids stay in training
             through the honey-like lesson (why: docs/training.md).
@@ -228,6 +234,7 @@ class TrainArgs:
     shaping: float = 0.0
     directed_tilt: bool = False
     directed_approach: bool = False
+    tilt_target: bool = False
     device: str = "cpu"
 
     def __post_init__(self) -> None:
@@ -254,6 +261,7 @@ class TrainArgs:
             "rehearse",
             "directed_tilt",
             "directed_approach",
+            "tilt_target",
         ):
             if not isinstance(getattr(self, name), bool):
                 raise InvalidParameterError(
@@ -342,7 +350,12 @@ class TrainArgs:
                 f"without DAgger (algorithm={self.algorithm!r}, "
                 f"dagger_rounds={self.dagger_rounds!r})"
             )
-        for name in ("directed_tilt", "directed_approach"):
+        if self.directed_tilt and self.tilt_target:
+            raise InvalidParameterError(
+                "directed_tilt=True and tilt_target=True both map the policy's tilt output; "
+                "choose one"
+            )
+        for name in ("directed_tilt", "directed_approach", "tilt_target"):
             if getattr(self, name) and (self.residual or self.warm_start_steps):
                 raise InvalidParameterError(
                     f"{name}=True maps the policy's own output; it does not go with a PD "
@@ -637,8 +650,9 @@ def train(
     if args.residual:
         venv = ResidualVecEnv(venv, args.residual)
     tolerance_g = base.venv.config.tolerance_g if args.directed_tilt else None
-    if args.directed_tilt or args.directed_approach:
-        venv = directed.DirectedTiltVecEnv(venv, tolerance_g, args.directed_approach)
+    tilt_target = directed.TiltTarget.of(base.venv.config) if args.tilt_target else None
+    if args.directed_tilt or args.directed_approach or args.tilt_target:
+        venv = directed.DirectedTiltVecEnv(venv, tolerance_g, args.directed_approach, tilt_target)
     icm = None
     if args.icm:
         icm = venv = ICMVecEnv(venv, ICMConfig(eta=args.icm_eta, update_every=args.n_steps))
@@ -665,7 +679,7 @@ def train(
                 start_residual(model, args.residual, args.clone_std or None)
             if args.init_std:
                 set_policy_std(model, args.init_std)
-            directed.mark(model, tolerance_g, args.directed_approach)
+            directed.mark(model, tolerance_g, args.directed_approach, tilt_target)
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()

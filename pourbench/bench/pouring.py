@@ -114,6 +114,8 @@ def describe(name: str) -> str:
         start,
         f"reward {reward}",
         *(["the directed tilt"] if cfg.get("directed_tilt") else []),
+        *(["the tilt target"] if cfg.get("tilt_target") else []),
+        *(["the directed approach"] if cfg.get("directed_approach") else []),
         f"curiosity {'on' if cfg['icm'] else 'off'}",
         f"curriculum {'on' if cfg['curriculum'] else 'off'}"
         + (" (rehearsing the earlier lessons)" if cfg.get("rehearse") else ""),
