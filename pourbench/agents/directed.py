@@ -37,10 +37,10 @@ Algorithm 4 then keeps the part of ω it allows, as for any policy. Under Algori
 is mostly a held tilt (the stream flows while the tilt stays), and the rate maps put that
 hold at an edge of the output range (u = −1 for the directed tilt), which a squashed policy
 (SAC, TD3) reaches only as its output before the squash grows without bound, where the
-tanh's gradient vanishes: every off-policy run from scratch with the rate maps lost its pour
-into that edge (docs/training.md). Here holding is ``θ* = θ``, inside the range at every tilt
-but upright, and a held pour is a constant output. Nothing the handler does is lost: every
-rate it applies is one output's. Not with the directed tilt (both map the tilt output).
+tanh's gradient vanishes. Here holding is ``θ* = θ``, inside the range at every tilt but
+upright, and a held pour is a constant output. Nothing the handler does is lost: every rate
+it applies is one output's. Not with the directed tilt (both map the tilt output). What it
+changes in training is measured in docs/training.md ("The tilt as a target").
 
 The environment is unchanged: the maps run on the learner's side (:class:`DirectedTiltVecEnv`
 in training, :func:`directed_policy` when acting), and the trained model records them as its
