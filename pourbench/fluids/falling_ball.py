@@ -55,9 +55,10 @@ def haberman_sayre(ratio: float) -> float:
 def _unbalanced(
     mu: float, speed: float, rho_f: float, radius: float, rho_s: float, bore_radius: float
 ) -> float:
-    """Drag less weight less buoyancy, N, of a sphere falling at ``speed`` on the cylinder's
-    axis: Stokes' drag × the wall factor × (1 + 0.15 Re^0.687)."""
-    re = rho_f * speed * 2.0 * radius / mu
+    """Drag less weight less buoyancy, N, of a sphere falling at ``speed`` (m/s, down; an
+    integrator may try a negative one) on the cylinder's axis: Stokes' drag × the wall factor
+    × (1 + 0.15 |Re|^0.687), opposing the motion."""
+    re = rho_f * abs(speed) * 2.0 * radius / mu
     drag = 6.0 * math.pi * mu * radius * speed * haberman_sayre(radius / bore_radius)
     weight = 4.0 / 3.0 * math.pi * radius**3 * GRAVITY * (rho_s - rho_f)  # less buoyancy
     return drag * (1.0 + 0.15 * re**0.687) - weight
