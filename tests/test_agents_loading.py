@@ -58,6 +58,29 @@ def test_a_saved_off_policy_model_acts_as_in_memory(tmp_path, algorithm) -> None
         np.testing.assert_array_equal(act(o, False), model.predict(o, deterministic=True)[0])
 
 
+@pytest.mark.parametrize("algorithm", ["sac", "tqc", "crossq"])
+def test_a_fixed_entropy_coefficient_stays_through_training_and_saving(tmp_path, algorithm):
+    """``ent_coef`` > 0 holds the entropy coefficient (no tuning optimizer) through updates and
+    a save; 0 leaves SB3's automatic tuning; td3, which has no entropy term, refuses one."""
+    from pourbench.agents.loading import load_model
+    from pourbench.agents.models import make_model
+
+    env = SB3PourVecEnv(2, seed=0, workers=1, liquid="water")
+    auto = make_model(algorithm, env, batch_size=8, verbose=0)
+    assert auto.ent_coef_optimizer is not None
+    model = make_model(algorithm, env, batch_size=8, seed=2, utd=1.0, ent_coef=0.015, verbose=0)
+    assert model.ent_coef_optimizer is None
+    model.learning_starts = 0
+    model.learn(8)
+    model.save(tmp_path / "fixed.zip")
+    with pytest.raises(ValueError, match="td3 has no entropy term"):
+        make_model("td3", env, ent_coef=0.015, verbose=0)
+    env.close()
+    loaded = load_model(tmp_path / "fixed.zip")
+    assert loaded.ent_coef_optimizer is None
+    assert float(loaded.ent_coef_tensor) == pytest.approx(0.015)
+
+
 def test_unknown_names_say_which_exist(capsys) -> None:
     with pytest.raises(ValueError, match=r"unknown policy 'pournet-gru'; known: pd, random"):
         load_policy("pournet-gru")

@@ -51,6 +51,9 @@ SMALL = ["--num-envs", "2", "--workers", "1", "--n-steps", "32", "--batch-size",
         (["--algorithm", "sac"], "algorithm 'sac' trains without the curiosity module"),
         (["--utd", "0.5"], "utd=0.5 sets an off-policy learner's updates"),
         (["--algorithm", "tqc", "--no-icm", "--utd", "-1"], "utd must be >= 0"),
+        (["--ent-coef", "0.01"], "ent_coef=0.01 fixes the entropy coefficient of sac"),
+        (["--algorithm", "td3", "--no-icm", "--ent-coef", "0.01"], "td3 has none to fix"),
+        (["--algorithm", "sac", "--no-icm", "--ent-coef", "-1"], "ent_coef must be >= 0"),
         (["--algorithm", "crossq", "--no-icm", "--sde"], "CrossQ explores with its own noise"),
         (["--algorithm", "td3", "--no-icm", "--sde"], "TD3 explores with its own noise"),
         (["--algorithm", "sac", "--no-icm", "--init-std", "0.3"], "init_std=0.3 sets the spread"),
@@ -403,6 +406,9 @@ def _state(args: dict) -> dict:
     return {"args": args, "timesteps": 16, "train_s": 1.0, "sessions": 1, "history": []}
 
 
+SAC = ["--algorithm", "sac", "--no-icm"]
+
+
 @pytest.mark.parametrize(
     "saved, argv, words",
     [
@@ -412,6 +418,7 @@ def _state(args: dict) -> dict:
         ([], ["--directed-tilt"], "has directed_tilt=False, not True"),
         ([], ["--directed-approach"], "has directed_approach=False, not True"),
         ([], ["--tilt-target"], "has tilt_target=False, not True"),
+        (SAC, [*SAC, "--ent-coef", "0.02"], "has ent_coef=0.0, not 0.02"),
         (["--no-curriculum"], ["--no-curriculum", "--liquid", "honey"],
          "has liquid='water', not 'honey'"),
     ],

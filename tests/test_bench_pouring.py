@@ -195,6 +195,8 @@ def test_the_training_line_names_the_start_and_the_reward(monkeypatch) -> None:
     monkeypatch.setitem(settings, "directed_approach", True)
     line = pouring.describe("x")
     assert "progress, the tilt target, the directed approach, curiosity on" in line
+    monkeypatch.setitem(settings, "ent_coef", 0.015)
+    assert "exploring with gSDE, entropy coefficient 0.015, reward" in pouring.describe("x")
 
 
 def test_a_novel_container_too_small_for_the_target_is_named_not_averaged() -> None:

@@ -85,6 +85,7 @@ def make_model(
     target_kl: float | None = None,
     sde: bool = False,
     utd: float = 0.0,
+    ent_coef: float = 0.0,
     verbose: int = 1,
 ) -> Any:
     """A new model of ``algorithm`` ("ppo": FNN, "recurrent_ppo": LSTM, or an off-policy
@@ -109,6 +110,8 @@ def make_model(
             step): each vector step of ``env.num_envs`` worlds is followed by
             ``max(1, round(utd × num_envs))`` updates; 0: one update per vector step (SB3's
             default).
+        ent_coef: SAC, TQC and CrossQ: the entropy coefficient, held fixed (0: tuned
+            toward SB3's target entropy, its default).
         verbose: SB3's verbosity.
 
     Raises:
@@ -153,6 +156,10 @@ def make_model(
                     f"sde: {NO_SDE[algorithm]} explores with its own noise only"
                 )
             del common["use_sde"]
+        if ent_coef:
+            if algorithm == "td3":
+                raise InvalidParameterError("ent_coef: td3 has no entropy term")
+            common["ent_coef"] = float(ent_coef)
         if algorithm == "td3":
             from stable_baselines3.common.noise import NormalActionNoise
 

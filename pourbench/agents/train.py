@@ -69,6 +69,7 @@ _SAME_ON_RESUME = (
     "eval_liquid",
     "target_g",
     "utd",
+    "ent_coef",
     "shaping",
     "directed_tilt",
     "directed_approach",
@@ -100,6 +101,9 @@ class TrainArgs:
         utd: the off-policy learners' gradient updates per environment step, the
             update-to-data ratio (0: one update per vector step, SB3's default;
             pourbench.agents.models.gradient_steps).
+        ent_coef: SAC, TQC and CrossQ: a fixed entropy coefficient instead of SB3's automatic
+            tuning toward its target entropy, which lets the policy's spread collapse once it
+            holds (docs/training.md, "The tilt as a target"); 0: automatic.
         curriculum: draw liquids from the curriculum's lessons, switched at 25 % and 50 %
             of the budget; --no-curriculum pours --liquid in every episode.
         num_envs: parallel worlds in the one vector env (the thesis' 32).
@@ -231,6 +235,7 @@ class TrainArgs:
     sde: bool = False
     rehearse: bool = False
     utd: float = 0.0
+    ent_coef: float = 0.0
     shaping: float = 0.0
     directed_tilt: bool = False
     directed_approach: bool = False
@@ -274,6 +279,12 @@ class TrainArgs:
                 "updates follow PPO's rollouts: give --no-icm"
             )
         check_finite("utd", self.utd, minimum=0.0)
+        check_finite("ent_coef", self.ent_coef, minimum=0.0)
+        if self.ent_coef and self.algorithm not in ("sac", "tqc", "crossq"):
+            raise InvalidParameterError(
+                f"ent_coef={self.ent_coef!r} fixes the entropy coefficient of sac, tqc or "
+                f"crossq; {self.algorithm} has none to fix"
+            )
         if self.utd and not off_policy:
             raise InvalidParameterError(
                 f"utd={self.utd!r} sets an off-policy learner's updates ({', '.join(OFF_POLICY)}); "
@@ -674,6 +685,7 @@ def train(
                 target_kl=args.target_kl or None,
                 sde=args.sde,
                 utd=args.utd,
+                ent_coef=args.ent_coef,
             )
             if args.residual:  # with a warm start, the cloning then sets the spread anew
                 start_residual(model, args.residual, args.clone_std or None)

@@ -101,6 +101,8 @@ def describe(name: str) -> str:
         start = "from scratch"
     if cfg.get("sde"):
         start += ", exploring with gSDE"
+    if cfg.get("ent_coef"):
+        start += f", entropy coefficient {cfg['ent_coef']:g}"
     reward = "Algorithm 5"
     if cfg.get("final_error_per_g"):
         reward += f" + {cfg['final_error_per_g']:g} per gram of final error"
