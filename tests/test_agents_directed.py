@@ -123,6 +123,13 @@ def test_the_tilt_target_turns_toward_the_outputs_tilt_and_holds_there(weight_g,
     np.testing.assert_allclose(_tilt_change(back, weight_g, tilt), plain, atol=1e-6)
 
 
+def test_a_wrapper_with_both_tilt_maps_is_refused() -> None:
+    env = SB3PourVecEnv(1, seed=0, **ENV)
+    with pytest.raises(ValueError, match="both map the tilt"):
+        DirectedTiltVecEnv(env, TOLERANCE, tilt_target=TARGET)
+    env.close()
+
+
 def test_the_directed_approach_maps_onto_speeds_toward_the_receiving_container() -> None:
     """v ↦ (v + 1) / 2 with the tilt untouched when only the approach is mapped; through
     Algorithm 4 every mapped output keeps or shortens the horizontal distance to the

@@ -61,7 +61,8 @@ def test_a_saved_off_policy_model_acts_as_in_memory(tmp_path, algorithm) -> None
 @pytest.mark.parametrize("algorithm", ["sac", "tqc", "crossq"])
 def test_a_fixed_entropy_coefficient_stays_through_training_and_saving(tmp_path, algorithm):
     """``ent_coef`` > 0 holds the entropy coefficient (no tuning optimizer) through updates and
-    a save; 0 leaves SB3's automatic tuning; td3, which has no entropy term, refuses one."""
+    a save; 0 leaves SB3's automatic tuning; td3 and ppo, which have no such coefficient,
+    refuse one."""
     from pourbench.agents.loading import load_model
     from pourbench.agents.models import make_model
 
@@ -73,8 +74,9 @@ def test_a_fixed_entropy_coefficient_stays_through_training_and_saving(tmp_path,
     model.learning_starts = 0
     model.learn(8)
     model.save(tmp_path / "fixed.zip")
-    with pytest.raises(ValueError, match="td3 has no entropy term"):
-        make_model("td3", env, ent_coef=0.015, verbose=0)
+    for other in ("td3", "ppo"):
+        with pytest.raises(ValueError, match=f"{other} has none to fix"):
+            make_model(other, env, ent_coef=0.015, verbose=0)
     env.close()
     loaded = load_model(tmp_path / "fixed.zip")
     assert loaded.ent_coef_optimizer is None

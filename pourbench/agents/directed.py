@@ -100,12 +100,10 @@ def direct(
 ) -> np.ndarray:
     """The environment's (ω, r) for the policy's (u, v) in the observed states (module
     docstring), as float32; ``actions`` (n, 2) or (2,), ``obs`` the matching (n, 12) or
-    (12,) observations. ``tolerance_g`` None leaves the tilt to ``tilt_target`` (None: as
-    it is), ``approach`` False the approach."""
+    (12,) observations. ``tolerance_g`` (the directed tilt) and ``tilt_target`` map the tilt,
+    at most one of them (None: as it is); ``approach`` False leaves the approach."""
     a = np.clip(np.asarray(actions, float), -1.0, 1.0)
     out = a.copy()
-    if tolerance_g is not None and tilt_target is not None:
-        raise InvalidParameterError("the directed tilt and the tilt target both map the tilt")
     if tolerance_g is not None:
         forward = np.asarray(obs, float)[..., REMAINING] > tolerance_g
         size = (a[..., 0] + 1.0) / 2.0
@@ -165,6 +163,8 @@ class DirectedTiltVecEnv(VecEnvWrapper):
         approach: bool = False,
         tilt_target: TiltTarget | None = None,
     ) -> None:
+        if tolerance_g is not None and tilt_target is not None:
+            raise InvalidParameterError("the directed tilt and the tilt target both map the tilt")
         super().__init__(venv)
         self.tolerance_g = None if tolerance_g is None else float(tolerance_g)
         self.approach = approach

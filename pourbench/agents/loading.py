@@ -49,6 +49,9 @@ OFF_POLICY = ("sac", "tqc", "crossq", "td3")
 """The off-policy learners ``pourbench train`` builds (replay buffer, update-to-data ratio)."""
 NO_SDE = {"crossq": "CrossQ", "td3": "TD3"}
 """The off-policy learners without gSDE, by their written names."""
+ENTROPY_TUNED = ("sac", "tqc", "crossq")
+"""The off-policy learners with an entropy coefficient (tuned by SB3 unless ``ent_coef`` fixes
+it)."""
 LR_SCHEDULES = ("constant", "linear")
 """How a learner's step size moves over its run (``pourbench train --lr-schedule``)."""
 

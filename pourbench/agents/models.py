@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
-from pourbench.agents.loading import LR_SCHEDULES, NO_SDE, OFF_POLICY
+from pourbench.agents.loading import ENTROPY_TUNED, LR_SCHEDULES, NO_SDE, OFF_POLICY
 from pourbench.errors import InvalidParameterError
 
 HIDDEN = (256, 256, 256)
@@ -115,7 +115,8 @@ def make_model(
         verbose: SB3's verbosity.
 
     Raises:
-        InvalidParameterError: an unknown algorithm or schedule.
+        InvalidParameterError: an unknown algorithm or schedule, or ``ent_coef`` for a learner
+            without an entropy coefficient.
     """
     from stable_baselines3 import PPO, SAC, TD3
     from stable_baselines3.common.utils import LinearSchedule
@@ -123,6 +124,11 @@ def make_model(
     if lr_schedule not in LR_SCHEDULES:
         raise InvalidParameterError(
             f"lr_schedule must be one of {list(LR_SCHEDULES)}, got {lr_schedule!r}"
+        )
+    if ent_coef and algorithm not in ENTROPY_TUNED:
+        raise InvalidParameterError(
+            f"ent_coef={ent_coef!r} fixes the entropy coefficient of {', '.join(ENTROPY_TUNED)}; "
+            f"{algorithm} has none to fix"
         )
     rate: Any = learning_rate
     if lr_schedule == "linear":
@@ -157,8 +163,6 @@ def make_model(
                 )
             del common["use_sde"]
         if ent_coef:
-            if algorithm == "td3":
-                raise InvalidParameterError("ent_coef: td3 has no entropy term")
             common["ent_coef"] = float(ent_coef)
         if algorithm == "td3":
             from stable_baselines3.common.noise import NormalActionNoise

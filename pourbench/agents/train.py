@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from pourbench.agents.loading import LR_SCHEDULES, NO_SDE, OFF_POLICY
+from pourbench.agents.loading import ENTROPY_TUNED, LR_SCHEDULES, NO_SDE, OFF_POLICY
 from pourbench.errors import (
     InvalidParameterError,
     PourbenchError,
@@ -280,10 +280,10 @@ class TrainArgs:
             )
         check_finite("utd", self.utd, minimum=0.0)
         check_finite("ent_coef", self.ent_coef, minimum=0.0)
-        if self.ent_coef and self.algorithm not in ("sac", "tqc", "crossq"):
+        if self.ent_coef and self.algorithm not in ENTROPY_TUNED:
             raise InvalidParameterError(
-                f"ent_coef={self.ent_coef!r} fixes the entropy coefficient of sac, tqc or "
-                f"crossq; {self.algorithm} has none to fix"
+                f"ent_coef={self.ent_coef!r} fixes the entropy coefficient of "
+                f"{', '.join(ENTROPY_TUNED)}; {self.algorithm} has none to fix"
             )
         if self.utd and not off_policy:
             raise InvalidParameterError(
