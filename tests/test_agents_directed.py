@@ -12,7 +12,8 @@ import pytest
 import torch
 
 from pourbench.agents import load_policy
-from pourbench.agents.directed import DirectedTiltVecEnv, TiltTarget, direct, mark
+from pourbench.agents.directed import ActionMap, DirectedTiltVecEnv, TiltTarget, direct, mark
+from pourbench.agents.loading import applied_mean
 from pourbench.agents.models import make_model
 from pourbench.agents.sb3 import SB3PourVecEnv
 from pourbench.agents.train import TrainArgs
@@ -231,3 +232,66 @@ def test_the_wrapper_tilts_only_above_the_receiving_container_and_at_the_mapped_
 def test_bad_directed_tilt_settings_are_refused(kw, match) -> None:
     with pytest.raises(ValueError, match=match):
         TrainArgs(**kw)
+
+
+@pytest.mark.parametrize(
+    "action_map, remaining_g, tilt, mean, std",
+    [
+        (ActionMap(), 50.0, 1.0, (-0.5, -0.2), (0.8, 0.3)),  # the mean tilts back: no pour
+        (ActionMap(), 1.0, 1.0, (0.4, 0.9), (1.2, 0.05)),  # after the target, the mean tilts on
+        (ActionMap(TOLERANCE, True), 50.0, 1.0, (0.3, -1.0), (0.6, 0.7)),
+        (ActionMap(tilt_target=TARGET), 50.0, 1.0, (-0.2, 0.0), (0.5, 1.5)),  # θ* under θ
+        (ActionMap(approach=True, tilt_target=TARGET), 1.0, 1.0, (0.0, 0.5), (1.0, 0.2)),
+    ],
+)
+def test_the_applied_mean_is_the_mean_of_what_algorithm_4_applies_to_the_samples(
+    action_map, remaining_g, tilt, mean, std
+) -> None:
+    """applied_mean's quadrature against 400 000 sampled actions, each tanh-squashed, mapped
+    and applied by the real handler: the mean tilt change and approach output agree within
+    their sampling error (about 0.002 of the full rate), and the handler applies the
+    returned action unchanged (its tilt rate is in the allowed direction)."""
+    rng = np.random.default_rng(0)
+    n = 400_000
+    obs = _obs(np.array([remaining_g]))[0]
+    obs[11] = tilt
+    expected = applied_mean(np.array(mean), np.array(std), obs, action_map, TOLERANCE)
+    samples = np.tanh(rng.normal(mean, std, size=(n, 2)))
+    mapped = direct(samples, np.broadcast_to(obs, (n, 12)), *action_map)
+    full = ActionLimits().max_rate * DT
+    weight_g = 100.0 - remaining_g
+    sampled_tilt = _tilt_change(mapped, weight_g, tilt).mean() / full
+    np.testing.assert_allclose(expected[0], sampled_tilt, atol=0.005)
+    np.testing.assert_allclose(expected[1], mapped[:, 1].mean(), atol=0.005)
+    applied = _tilt_change(expected[None], weight_g, tilt)[0] / full
+    np.testing.assert_allclose(applied, expected[0], atol=1e-6)
+
+
+def test_a_model_that_records_the_handler_acts_with_the_applied_mean(tmp_path) -> None:
+    """A SAC model whose actor's Gaussian is the same everywhere, saved with the handler's
+    tolerance, acts with applied_mean of that Gaussian through its map; one saved without it
+    (before the tolerance was recorded) acts with the squashed mean, as SB3 does."""
+    env = SB3PourVecEnv(1, seed=0, **ENV)
+    model = make_model("sac", DirectedTiltVecEnv(env, None, True, TARGET), verbose=0)
+    mean, std = np.array([-0.3, 0.2]), np.array([0.7, 0.4])
+    actor = model.policy.actor
+    with torch.no_grad():
+        actor.mu.weight.zero_()
+        actor.mu.bias.copy_(torch.tensor(mean))
+        actor.log_std.weight.zero_()
+        actor.log_std.bias.copy_(torch.tensor(np.log(std)))
+    mark(model, None, True, TARGET)
+    model.save(tmp_path / "plain.zip")
+    mark(model, None, True, TARGET, handler_tolerance_g=TOLERANCE)
+    model.save(tmp_path / "recorded.zip")
+    env.close()
+    obs = _obs(np.array([50.0, 1.0]))
+    obs[:, 11] = 1.0
+    recorded, plain = load_policy(tmp_path / "recorded.zip"), load_policy(tmp_path / "plain.zip")
+    for o in obs:
+        want = applied_mean(mean, std, o, ActionMap(None, True, TARGET), TOLERANCE)
+        np.testing.assert_allclose(recorded(o, True), want, atol=1e-5)
+        np.testing.assert_allclose(
+            plain(o, True), direct(np.tanh(mean), o, None, True, TARGET), atol=1e-5
+        )
+    assert recorded(obs[0], True)[0] > 0.0 > plain(obs[0], True)[0]  # the samples pour

@@ -476,3 +476,34 @@ def test_a_malformed_state_file_is_refused_in_one_line(tmp_path, capsys, state, 
     assert "state.json" in err and "missing or unreadable" in err and words in err, err
     assert sorted(p.name for p in out.iterdir()) == ["model.zip", "state.json"]
     assert (out / "state.json").read_bytes() == raw
+
+
+@pytest.mark.slow
+def test_an_off_policy_run_resumes_with_its_replay_buffer(tmp_path, capsys) -> None:
+    """A SAC run checkpoints its replay buffer beside the model; resumed, it continues with
+    the transitions it had collected (128 steps, then 64 more), and its model records the
+    handler's tolerance that its deterministic action averages under."""
+    from stable_baselines3.common.save_util import load_from_pkl
+
+    from pourbench.agents.directed import HANDLER_ATTRIBUTE
+    from pourbench.agents.loading import load_model
+    from pourbench.envs.core import PourConfig
+
+    out = tmp_path / "sac"
+    run = [
+        *SMALL,
+        *("--algorithm", "sac", "--no-icm", "--no-curriculum", "--eval-episodes", "1"),
+        *("--eval-every-steps", "0", "--out", str(out)),
+    ]
+    assert main([*run, "--budget-steps", "128"]) == 0
+    assert load_from_pkl(out / "replay_buffer.pkl").size() * 2 == 128  # 2 worlds a row
+    assert getattr(load_model(out / "model.zip"), HANDLER_ATTRIBUTE) == PourConfig().tolerance_g
+    assert main([*run, "--budget-steps", "192", "--resume"]) == 0
+    assert "no replay buffer" not in capsys.readouterr().out
+    assert load_from_pkl(out / "replay_buffer.pkl").size() * 2 == 192
+
+    (out / "replay_buffer.pkl").unlink()
+    assert main([*run, "--budget-steps", "256", "--resume"]) == 0
+    assert "the resumed run starts with none" in capsys.readouterr().out
+    assert load_from_pkl(out / "replay_buffer.pkl").size() * 2 == 64
+    assert not list(out.glob("*.partial*"))

@@ -22,8 +22,8 @@ def test_the_variants_differ_only_in_curiosity_and_curriculum() -> None:
     }
 
 
-def test_the_off_policy_variant_is_td3_on_water_with_the_same_terms() -> None:
-    assert ablation.variant_names() == ["ppo", "ppo_icm", "ppo_icm_curriculum", "td3"]
+def test_the_off_policy_variants_are_td3_and_sac_on_water_with_the_same_terms() -> None:
+    assert ablation.variant_names() == ["ppo", "ppo_icm", "ppo_icm_curriculum", "td3", "sac"]
     assert ablation.settings("ppo_icm") == {
         "algorithm": "recurrent_ppo",
         "policy": "lstm",
@@ -35,6 +35,12 @@ def test_the_off_policy_variant_is_td3_on_water_with_the_same_terms() -> None:
     assert off["algorithm"] == "td3" and not off["icm"] and not off["curriculum"]
     assert {k: off[k] for k in ablation.DENSE} == ablation.DENSE
     assert off["utd"] > 0 and off["directed_approach"] is True
+    sac = ablation.settings("sac")
+    assert sac["algorithm"] == "sac" and not sac["icm"] and not sac["curriculum"]
+    same = {k: v for k, v in ablation.DENSE.items() if k != "directed_tilt"}
+    assert {k: sac[k] for k in same} == same
+    assert sac["tilt_target"] and not sac["directed_tilt"] and sac["directed_approach"]
+    assert sac["ent_coef"] > 0 and sac["utd"] > 0
     from pourbench.agents.train import TrainArgs
 
     for name in ablation.variant_names():

@@ -71,6 +71,11 @@ TARGET_ATTRIBUTE = "tilt_target"
 """The model attribute holding the tilt-target map's (largest tilt, tilt at full rate over one
 step), both rad (absent or None: no tilt-target map)."""
 
+HANDLER_ATTRIBUTE = "handler_tolerance_g"
+"""The model attribute holding the tolerance (g) of the Algorithm 4 it was trained under, with
+or without a map: :func:`pourbench.agents.loading.model_policy` needs it to average the rate the
+handler applies (absent: a model saved before it was recorded)."""
+
 REMAINING = 9
 """Index of the remaining weight (target − filtered reading, g) in a Pour-v0 observation."""
 TILT = 11
@@ -89,6 +94,15 @@ class TiltTarget(NamedTuple):
         rate."""
         limits = config.limits
         return cls(float(limits.max_tilt), float(limits.max_rate) / float(config.control_hz))
+
+
+def allowed(rates: np.ndarray, obs: np.ndarray, tolerance_g: float) -> np.ndarray:
+    """The part of the tilt rates ``rates`` (any shape) that Algorithm 4 applies in the
+    observed state ``obs`` (one observation, 12 values): the forward part while the remaining
+    weight exceeds ``tolerance_g``, the backward part after."""
+    if float(obs[REMAINING]) > tolerance_g:
+        return np.maximum(rates, 0.0)
+    return np.minimum(rates, 0.0)
 
 
 def direct(
@@ -141,9 +155,17 @@ def model_map(model: Any) -> ActionMap:
 
 
 def mark(
-    model: Any, tolerance_g: float | None, approach: bool, tilt_target: TiltTarget | None = None
+    model: Any,
+    tolerance_g: float | None,
+    approach: bool,
+    tilt_target: TiltTarget | None = None,
+    handler_tolerance_g: float | None = None,
 ) -> None:
-    """Record the map on ``model`` so that its saved ``.zip`` acts through it."""
+    """Record the map on ``model`` so that its saved ``.zip`` acts through it, and the
+    tolerance of the Algorithm 4 it is trained under (:data:`HANDLER_ATTRIBUTE`) when
+    given."""
+    if handler_tolerance_g is not None:
+        setattr(model, HANDLER_ATTRIBUTE, float(handler_tolerance_g))
     if tolerance_g is not None:
         setattr(model, ATTRIBUTE, float(tolerance_g))
     if approach:

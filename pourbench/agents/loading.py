@@ -7,11 +7,20 @@ algorithm is read from the file).
 ``obs`` is one Pour-v0 observation (12 values), the action two values in [-1, 1];
 ``new_episode`` is True on an episode's first step. A recurrent policy keeps its LSTM state
 from call to call and starts afresh when ``new_episode`` is True. Saved models act
-deterministically: a PPO or RecurrentPPO model with the mean of the action its Gaussian
-policy applies after the action bounds' clip (:func:`clipped_mean`), an off-policy model
-with SB3's deterministic action. A residual model (``pourbench train --residual``) acts on
-top of its own PD baseline, a directed-tilt model (``--directed-tilt``) through its action
-map.
+deterministically, each with the mean of what its stochastic policy applies:
+
+* a PPO or RecurrentPPO model with the mean of its Gaussian's action after the action
+  bounds' clip (:func:`clipped_mean`);
+* a SAC, TQC or CrossQ model (a squashed Gaussian) with the mean of the tilt rate Algorithm 4
+  applies and of the approach speed, through its action map, over its Gaussian
+  (:func:`applied_mean`), when it records the handler's tolerance (every model
+  ``pourbench train`` saves does); with SB3's deterministic action, the squashed mean,
+  otherwise and with gSDE;
+* a TD3 model (deterministic already) with its action.
+
+A residual model (``pourbench train --residual``) acts on top of its own PD baseline, a
+model trained through an action map (``--directed-tilt``, ``--tilt-target``,
+``--directed-approach``) through that map.
 """
 
 from __future__ import annotations
@@ -52,6 +61,9 @@ NO_SDE = {"crossq": "CrossQ", "td3": "TD3"}
 ENTROPY_TUNED = ("sac", "tqc", "crossq")
 """The off-policy learners with an entropy coefficient (tuned by SB3 unless ``ent_coef`` fixes
 it)."""
+QUANTILES = 64
+"""The equally likely values of each action dimension's Gaussian that :func:`applied_mean`
+averages over (the midpoints of as many equal slices of its probability)."""
 LR_SCHEDULES = ("constant", "linear")
 """How a learner's step size moves over its run (``pourbench train --lr-schedule``)."""
 
@@ -178,27 +190,81 @@ def _expected_action(model: Any) -> Policy:
     return act
 
 
+def applied_mean(
+    mean: np.ndarray,
+    std: np.ndarray,
+    obs: np.ndarray,
+    action_map: Any,
+    tolerance_g: float,
+) -> np.ndarray:
+    """The mean of what Pour-v0 applies for a squashed Gaussian policy's action in the
+    observed state ``obs`` (12 values): the action is tanh(x), x ~ N(``mean``, ``std``²) per
+    dimension (2 values each), mapped through ``action_map`` (a
+    :class:`~pourbench.agents.directed.ActionMap`) and its tilt rate cut to the direction
+    Algorithm 4 allows at ``tolerance_g``. Both act on each dimension alone, so the mean is
+    taken over each Gaussian on its own, as the average over :data:`QUANTILES` equally likely
+    values (the quantiles at the midpoints of equal slices of probability): the applied rate
+    has kinks where the handler cuts it and the maps clip it, over which this rule errs by
+    about 1e-4 of the full rate where a 16-node Gauss–Hermite rule errs by 1e-2.
+
+    The squashed mean tanh(``mean``) is not what such a policy does on average: under
+    Algorithm 4 a SAC policy trained from scratch holds its tilt mean where the handler
+    applies nothing and pours through the spread around it (docs/training.md, "The tilt as a
+    target"). The returned action lies in the allowed direction, so the handler applies it
+    as it is."""
+    from scipy.special import ndtri
+
+    from pourbench.agents import directed
+
+    z = ndtri((np.arange(QUANTILES) + 0.5) / QUANTILES)
+    squashed = np.tanh(np.asarray(mean, float) + np.asarray(std, float) * z[:, None])
+    mapped = directed.direct(squashed, np.broadcast_to(obs, (QUANTILES, len(obs))), *action_map)
+    mapped = mapped.astype(float)
+    mapped[:, 0] = directed.allowed(mapped[:, 0], obs, tolerance_g)
+    return mapped.mean(axis=0).astype(np.float32)
+
+
+def _applied_mean_policy(model: Any, action_map: Any, tolerance_g: float) -> Policy:
+    """A SAC, TQC or CrossQ ``model`` acting with :func:`applied_mean` of its actor's
+    Gaussian, its map included."""
+    import torch
+
+    actor = model.policy.actor
+
+    def act(obs: np.ndarray, new: bool) -> np.ndarray:
+        tensor, _ = model.policy.obs_to_tensor(obs)
+        with torch.no_grad():
+            mean, log_std, _ = actor.get_action_dist_params(tensor)
+        return applied_mean(mean.numpy()[0], log_std.exp().numpy()[0], obs, action_map, tolerance_g)
+
+    return act
+
+
 def model_policy(model: Any) -> Policy:
     """An SB3 model in memory as ``f(obs, new_episode)`` acting deterministically (the
     module docstring); a recurrent model's state is kept between calls and cleared when
     ``new_episode``; a residual model (:mod:`pourbench.agents.residual`) acts on top of its
     PD baseline, and a directed-tilt model (:mod:`pourbench.agents.directed`) through its
     map."""
-    from sb3_contrib import RecurrentPPO
-    from stable_baselines3 import PPO
+    from sb3_contrib import TQC, CrossQ, RecurrentPPO
+    from stable_baselines3 import PPO, SAC
 
     from pourbench.agents import directed, residual
+
+    scale = getattr(model, residual.ATTRIBUTE, 0.0)
+    action_map = directed.model_map(model)
+    tolerance_g = getattr(model, directed.HANDLER_ATTRIBUTE, None)
+    squashed = isinstance(model, SAC | TQC | CrossQ) and not model.use_sde
+    if squashed and tolerance_g is not None and not scale:
+        return _applied_mean_policy(model, action_map, tolerance_g)
 
     act: Policy
     if isinstance(model, PPO | RecurrentPPO):
         act = _expected_action(model)
     else:
         act = lambda obs, new: model.predict(obs, deterministic=True)[0]  # noqa: E731
-
-    scale = getattr(model, residual.ATTRIBUTE, 0.0)
     if scale:
         return residual.residual_policy(act, scale)
-    action_map = directed.model_map(model)
     if action_map.identity:
         return act
     return directed.directed_policy(act, action_map)

@@ -10,14 +10,16 @@ The run's folder (``--out``) holds:
 
 * ``model.zip``: the model, saved every ``--checkpoint-s`` seconds and at the end (through
   a temporary file: an interrupted run keeps its last checkpoint), with ``icm.pt`` (the
-  curiosity module's weights and optimiser) and ``state.json`` (settings, steps, seconds
-  trained, and each session's command, git SHA, machine, date, steps and seconds) beside it;
+  curiosity module's weights and optimiser), ``replay_buffer.pkl`` (an off-policy learner's
+  replay buffer) and ``state.json`` (settings, steps, seconds trained, and each session's
+  command, git SHA, machine, date, steps and seconds) beside it;
 * ``logs/<session>/``: SB3's ``progress.csv`` and TensorBoard events
   (``tensorboard --logdir <out>/logs``), one folder per session;
 * ``training.png``: the training curves (:mod:`pourbench.agents.plots`);
 * ``result.json``: the final evaluation against a random policy.
 
-``--resume`` continues the latest checkpoint: model, ICM and step count; the budget is the
+``--resume`` continues the latest checkpoint: model, ICM, replay buffer and step count; the
+budget is the
 run's total (steps, or seconds over all sessions), so a resumed run trains until it is spent
 and a finished one is resumed with a larger budget. A run into a folder that already holds a
 model without ``--resume`` is refused rather than overwriting it.
@@ -451,6 +453,14 @@ def _save(model: Any, path: Path) -> None:
     os.replace(partial, path)
 
 
+def _save_buffer(model: Any, path: Path) -> None:
+    """An off-policy ``model``'s replay buffer to ``path`` (``.pkl``) through a temporary
+    file."""
+    partial = path.with_name(path.stem + ".partial.pkl")
+    model.save_replay_buffer(partial)
+    os.replace(partial, path)
+
+
 def _read_state(out: Path, args: TrainArgs) -> dict[str, Any]:
     """The run's ``state.json`` for a resume, checked against ``args``.
 
@@ -595,6 +605,8 @@ def train(
         known_liquid(name)  # before any work: a typo fails in a second
     out = check_output_folder(args.out)
     model_path, icm_path, best_path = out / "model.zip", out / "icm.pt", out / "best_model.zip"
+    buffer_path = out / "replay_buffer.pkl"
+    off_policy = args.algorithm in OFF_POLICY
     state: dict[str, Any] = {"timesteps": 0, "train_s": 0.0, "sessions": 0, "history": []}
     if args.resume:
         state = _read_state(out, args)
@@ -672,6 +684,10 @@ def train(
             model = load_model(model_path, env=venv)
             if icm is not None:
                 icm.load(icm_path)
+            if off_policy and buffer_path.exists():
+                model.load_replay_buffer(buffer_path)
+            elif off_policy:
+                print(f"no replay buffer at {buffer_path}: the resumed run starts with none")
             print(f"resuming {model_path} at {model.num_timesteps} timesteps")
         else:
             model = make_model(
@@ -692,6 +708,7 @@ def train(
             if args.init_std:
                 set_policy_std(model, args.init_std)
             directed.mark(model, tolerance_g, args.directed_approach, tilt_target)
+        directed.mark(model, None, False, handler_tolerance_g=base.venv.config.tolerance_g)
         log_dir = out / "logs" / str(state["sessions"])
         model.set_logger(configure(str(log_dir), ["stdout", "csv", "tensorboard"]))
         t_start = time.perf_counter()
@@ -747,6 +764,8 @@ def train(
             _save(model, model_path)
             if icm is not None:
                 icm.save(icm_path)
+            if off_policy:
+                _save_buffer(model, buffer_path)
             steps, total_s = int(model.num_timesteps), spent_s()
             session = {**stamp, "timesteps": steps, "session_s": total_s - state["train_s"]}
             now = {
