@@ -1,5 +1,6 @@
 """Shipping a finished training run as a named policy: the same actions, a smaller file
-(no optimiser moments), and the metadata the training issue asks for."""
+(no optimiser moments, for PPO and for SAC), and the metadata the training issue asks
+for."""
 
 from __future__ import annotations
 
@@ -159,3 +160,49 @@ def test_a_failed_save_leaves_no_partial_file(finished_run, tmp_path, monkeypatc
     with pytest.raises(OSError, match="disk full"):
         ship(finished_run[0], "mine", policy_dir=tmp_path)
     assert not list(tmp_path.iterdir())
+
+
+def test_a_shipped_sac_model_acts_as_the_run_without_its_optimisers_moments(tmp_path) -> None:
+    """SAC keeps Adam's moments for its actor and its critic; the shipped file keeps neither
+    and acts as the run's model, its map and handler tolerance included."""
+    from pourbench.agents.directed import DirectedTiltVecEnv, TiltTarget, mark
+    from pourbench.agents.loading import load_model, load_sb3_policy, model_policy
+    from pourbench.agents.models import make_model
+    from pourbench.agents.sb3 import SB3PourVecEnv
+    from pourbench.agents.ship import ship
+    from pourbench.envs.core import PourConfig
+
+    run = tmp_path / "run"
+    run.mkdir()
+    env = SB3PourVecEnv(1, seed=0, workers=1, liquid="water")
+    target = TiltTarget.of(PourConfig())
+    try:
+        venv = DirectedTiltVecEnv(env, None, True, target)
+        model = make_model("sac", venv, batch_size=8, verbose=0)
+        model.learning_starts = 0
+        mark(model, None, True, target, handler_tolerance_g=2.0)
+        model.learn(16)
+        model.save(run / "model.zip")
+    finally:
+        env.close()
+    state = {
+        "args": {"algorithm": "sac", "policy": "mlp", "seed": 0},
+        "timesteps": 16,
+        "train_s": 1.0,
+        "history": [],
+    }
+    (run / "state.json").write_text(json.dumps(state))
+    result = {"mean_abs_error_g": 50.0, "policy": "x", "random_mean_abs_error_g": 99.0}
+    (run / "result.json").write_text(json.dumps(result))
+
+    ship(run, "sac-test", policy_dir=tmp_path)
+    shipped = tmp_path / "sac-test.zip"
+    assert shipped.stat().st_size < 0.6 * (run / "model.zip").stat().st_size
+    loaded = load_model(shipped)
+    assert not loaded.actor.optimizer.state and not loaded.critic.optimizer.state
+    original, copy = model_policy(model), load_sb3_policy(shipped)
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        obs = rng.uniform(0.0, 100.0, 12).astype(np.float32)
+        obs[11] = rng.uniform(0.0, 2.4)
+        assert np.array_equal(original(obs, True), copy(obs, True))

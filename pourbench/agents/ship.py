@@ -1,8 +1,9 @@
 """Ship a finished ``pourbench train`` run as a named policy.
 
 ``python -m pourbench.agents.ship runs/pournet-lstm pournet-lstm`` writes
-``pourbench/agents/policies/pournet-lstm.zip`` (the model, with a fresh optimiser: Adam's
-moments are two thirds of a saved LSTM model and acting needs none of them) beside
+``pourbench/agents/policies/pournet-lstm.zip`` (the model without its optimisers' state:
+Adam's moments are two thirds of a saved LSTM model, and of a SAC model's actor and critic,
+and acting needs none of them) beside
 ``pournet-lstm.json``: the command of each training session, steps, seed, wall time, git
 SHA, machine and date, the warm start's numbers, which checkpoint shipped with its own
 evaluation, and the evaluation of the model at the end of training (``final_evaluation``).
@@ -44,6 +45,20 @@ def _read_run_json(path: Path, keys: tuple[str, ...]) -> dict[str, Any]:
             f"{str(path)!r} has no {', '.join(missing)}: not what pourbench train writes"
         )
     return data
+
+
+def _drop_optimiser_state(model: Any) -> None:
+    """Empty the state (Adam's moments) of every optimiser of the SB3 ``model``: its
+    policy's (PPO), its actor's and critic's (SAC, TQC, CrossQ, TD3) and its entropy
+    coefficient's. What the model computes is unchanged."""
+    import torch
+
+    owners = [*model.policy.modules(), model]
+    for owner in owners:
+        for name in ("optimizer", "ent_coef_optimizer"):
+            optimizer = getattr(owner, name, None)
+            if isinstance(optimizer, torch.optim.Optimizer):
+                optimizer.state.clear()
 
 
 def ship(
@@ -98,10 +113,7 @@ def ship(
         "file": "model.zip", "timesteps": state["timesteps"]
     }  # fmt: skip
     model = load_model(run / checkpoint["file"])
-    policy = model.policy
-    policy.optimizer = policy.optimizer_class(
-        policy.parameters(), lr=model.lr_schedule(1.0), **policy.optimizer_kwargs
-    )
+    _drop_optimiser_state(model)
     meta: dict[str, Any] = {
         "name": name,
         "algorithm": settings["algorithm"],
