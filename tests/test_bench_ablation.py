@@ -22,8 +22,8 @@ def test_the_variants_differ_only_in_curiosity_and_curriculum() -> None:
     }
 
 
-def test_the_off_policy_variants_are_td3_and_sac_on_water_with_the_same_terms() -> None:
-    assert ablation.variant_names() == ["ppo", "ppo_icm", "ppo_icm_curriculum", "td3", "sac"]
+def test_the_off_policy_variant_is_sac_on_water_with_the_same_terms() -> None:
+    assert ablation.variant_names() == ["ppo", "ppo_icm", "ppo_icm_curriculum", "sac"]
     assert ablation.settings("ppo_icm") == {
         "algorithm": "recurrent_ppo",
         "policy": "lstm",
@@ -31,10 +31,6 @@ def test_the_off_policy_variants_are_td3_and_sac_on_water_with_the_same_terms() 
         "curriculum": False,
         **ablation.DENSE,
     }
-    off = ablation.settings("td3")
-    assert off["algorithm"] == "td3" and not off["icm"] and not off["curriculum"]
-    assert {k: off[k] for k in ablation.DENSE} == ablation.DENSE
-    assert off["utd"] > 0 and off["directed_approach"] is True
     sac = ablation.settings("sac")
     assert sac["algorithm"] == "sac" and not sac["icm"] and not sac["curriculum"]
     same = {k: v for k, v in ablation.DENSE.items() if k != "directed_tilt"}
@@ -237,7 +233,7 @@ def test_finished_reports_the_recorded_runs_and_trains_none(tmp_path, monkeypatc
     kept = json.loads((records / "ppo-seed1.json").read_text())
     assert data["rows"][0]["best_eval_error_g"] <= kept["result"]["mean_abs_error_g"]
     report = (tmp_path / "lb" / "ablation.md").read_text()
-    assert "not yet trained `ppo_icm_curriculum` seed 0" in report and "`td3` seed 2" in report
+    assert "not yet trained `ppo_icm_curriculum` seed 0" in report and "`sac` seed 2" in report
     assert (tmp_path / "lb" / "ablation.png").is_file()
 
     empty = argparse.Namespace(**{**vars(args), "out": str(tmp_path / "none")})
