@@ -205,7 +205,7 @@ def applied_mean(
     taken over each Gaussian on its own, as the average over :data:`QUANTILES` equally likely
     values (the quantiles at the midpoints of equal slices of probability): the applied rate
     has kinks where the handler cuts it and the maps clip it, over which this rule errs by
-    about 1e-4 of the full rate where a 16-node Gauss–Hermite rule errs by 1e-2.
+    under 1e-4 of the full rate where a 16-node Gauss–Hermite rule errs by 1e-2.
 
     The squashed mean tanh(``mean``) is not what such a policy does on average: under
     Algorithm 4 a SAC policy trained from scratch holds its tilt mean where the handler
