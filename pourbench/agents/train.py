@@ -20,8 +20,8 @@ The run's folder (``--out``) holds:
 
 ``--resume`` continues the latest checkpoint: model, ICM, replay buffer and step count; the
 budget is the run's total (steps, or seconds over all sessions), so a resumed run trains
-until it is spent and a finished one is resumed with a larger budget. A run into a folder that already holds a
-model without ``--resume`` is refused rather than overwriting it.
+until it is spent and a finished one is resumed with a larger budget. A run into a folder
+that already holds a model without ``--resume`` is refused rather than overwriting it.
 """
 
 from __future__ import annotations
