@@ -96,15 +96,6 @@ class TiltTarget(NamedTuple):
         return cls(float(limits.max_tilt), float(limits.max_rate) / float(config.control_hz))
 
 
-def allowed(rates: np.ndarray, obs: np.ndarray, tolerance_g: float) -> np.ndarray:
-    """The part of the tilt rates ``rates`` (any shape) that Algorithm 4 applies in the
-    observed state ``obs`` (one observation, 12 values): the forward part while the remaining
-    weight exceeds ``tolerance_g``, the backward part after."""
-    if float(obs[REMAINING]) > tolerance_g:
-        return np.maximum(rates, 0.0)
-    return np.minimum(rates, 0.0)
-
-
 def direct(
     actions: np.ndarray,
     obs: np.ndarray,

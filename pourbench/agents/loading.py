@@ -25,6 +25,7 @@ model trained through an action map (``--directed-tilt``, ``--tilt-target``,
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import zipfile
@@ -76,6 +77,16 @@ _ALGORITHMS = {
     "sb3_contrib.crossq.policies": "crossq",
     "stable_baselines3.td3.policies": "td3",
 }
+
+
+def check_ent_coef(algorithm: str, ent_coef: float) -> None:
+    """Raise an :class:`InvalidParameterError` when ``ent_coef`` (> 0: a fixed entropy
+    coefficient) is given to a learner without one (not in :data:`ENTROPY_TUNED`)."""
+    if ent_coef and algorithm not in ENTROPY_TUNED:
+        raise InvalidParameterError(
+            f"ent_coef={ent_coef!r} fixes the entropy coefficient of {', '.join(ENTROPY_TUNED)}; "
+            f"{algorithm} has none to fix"
+        )
 
 
 def algorithm_of(path: str | Path) -> str:
@@ -203,25 +214,33 @@ def applied_mean(
     :class:`~pourbench.agents.directed.ActionMap`) and its tilt rate cut to the direction
     Algorithm 4 allows at ``tolerance_g``. Both act on each dimension alone, so the mean is
     taken over each Gaussian on its own, as the average over :data:`QUANTILES` equally likely
-    values (the quantiles at the midpoints of equal slices of probability): the applied rate
-    has kinks where the handler cuts it and the maps clip it, over which this rule errs by
-    under 1e-4 of the full rate where a 16-node Gauss–Hermite rule errs by 1e-2.
+    values (the quantiles at the midpoints of equal slices of probability), a rule that stays
+    accurate over the kinks where the handler cuts the rate and the maps clip it, unlike a
+    Gauss–Hermite rule (docs/training.md, "The tilt as a target").
 
     The squashed mean tanh(``mean``) is not what such a policy does on average: under
     Algorithm 4 a SAC policy trained from scratch holds its tilt mean where the handler
     applies nothing and pours through the spread around it (docs/training.md, "The tilt as a
     target"). The returned action lies in the allowed direction, so the handler applies it
     as it is."""
-    from scipy.special import ndtri
-
     from pourbench.agents import directed
+    from pourbench.envs.action_handler import allowed_rates
 
-    z = ndtri((np.arange(QUANTILES) + 0.5) / QUANTILES)
+    z = _unit_quantiles()
     squashed = np.tanh(np.asarray(mean, float) + np.asarray(std, float) * z[:, None])
     mapped = directed.direct(squashed, np.broadcast_to(obs, (QUANTILES, len(obs))), *action_map)
     mapped = mapped.astype(float)
-    mapped[:, 0] = directed.allowed(mapped[:, 0], obs, tolerance_g)
+    mapped[:, 0] = allowed_rates(mapped[:, 0], obs[directed.REMAINING] > tolerance_g)
     return mapped.mean(axis=0).astype(np.float32)
+
+
+@functools.cache
+def _unit_quantiles() -> np.ndarray:
+    """The standard normal's quantiles at the midpoints of :data:`QUANTILES` equal slices of
+    probability."""
+    from scipy.special import ndtri
+
+    return ndtri((np.arange(QUANTILES) + 0.5) / QUANTILES)
 
 
 def _applied_mean_policy(model: Any, action_map: Any, tolerance_g: float) -> Policy:

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
-from pourbench.agents.loading import ENTROPY_TUNED, LR_SCHEDULES, NO_SDE, OFF_POLICY
+from pourbench.agents.loading import LR_SCHEDULES, NO_SDE, OFF_POLICY, check_ent_coef
 from pourbench.errors import InvalidParameterError
 
 HIDDEN = (256, 256, 256)
@@ -125,11 +125,7 @@ def make_model(
         raise InvalidParameterError(
             f"lr_schedule must be one of {list(LR_SCHEDULES)}, got {lr_schedule!r}"
         )
-    if ent_coef and algorithm not in ENTROPY_TUNED:
-        raise InvalidParameterError(
-            f"ent_coef={ent_coef!r} fixes the entropy coefficient of {', '.join(ENTROPY_TUNED)}; "
-            f"{algorithm} has none to fix"
-        )
+    check_ent_coef(algorithm, ent_coef)
     rate: Any = learning_rate
     if lr_schedule == "linear":
         rate = LinearSchedule(start=learning_rate, end=0.0, end_fraction=1.0)

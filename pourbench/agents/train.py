@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from pourbench.agents.loading import ENTROPY_TUNED, LR_SCHEDULES, NO_SDE, OFF_POLICY
+from pourbench.agents.loading import LR_SCHEDULES, NO_SDE, OFF_POLICY, check_ent_coef
 from pourbench.errors import (
     InvalidParameterError,
     PourbenchError,
@@ -280,12 +280,7 @@ class TrainArgs:
                 "updates follow PPO's rollouts: give --no-icm"
             )
         check_finite("utd", self.utd, minimum=0.0)
-        check_finite("ent_coef", self.ent_coef, minimum=0.0)
-        if self.ent_coef and self.algorithm not in ENTROPY_TUNED:
-            raise InvalidParameterError(
-                f"ent_coef={self.ent_coef!r} fixes the entropy coefficient of "
-                f"{', '.join(ENTROPY_TUNED)}; {self.algorithm} has none to fix"
-            )
+        check_ent_coef(self.algorithm, check_finite("ent_coef", self.ent_coef, minimum=0.0))
         if self.utd and not off_policy:
             raise InvalidParameterError(
                 f"utd={self.utd!r} sets an off-policy learner's updates ({', '.join(OFF_POLICY)}); "

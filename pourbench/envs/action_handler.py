@@ -75,6 +75,13 @@ def as_actions(actions: object, n: int | None = None) -> np.ndarray:
     return a
 
 
+def allowed_rates(omega: np.ndarray, forward: np.ndarray | bool) -> np.ndarray:
+    """The part of the tilt rates ``omega`` that Algorithm 4 applies: the forward part
+    (ω ≥ 0) where ``forward`` (the received weight still below ``target − tolerance``), the
+    backward part elsewhere."""
+    return np.where(forward, np.maximum(omega, 0.0), np.minimum(omega, 0.0))
+
+
 def handle_actions(
     actions: np.ndarray,
     base: np.ndarray,
@@ -126,7 +133,7 @@ def handle_actions(
         d = np.where(high[:, None], target_pos - base, np.c_[d_xy, np.zeros(len(a))])
         move = ~above
         forward = weight_g < target_g - tolerance_g
-        dtheta = np.where(forward, np.maximum(omega, 0.0), np.minimum(omega, 0.0)) * dt
+        dtheta = allowed_rates(omega, forward) * dt
         dtheta = np.where(above, dtheta, 0.0)
     norm = np.linalg.norm(d, axis=1, keepdims=True)
     unit = np.divide(d, norm, out=np.zeros_like(d), where=norm > 1e-9)
